@@ -1,0 +1,200 @@
+"""Rigid-body geometry in float64: quaternions (w, x, y, z), 4x4 SE3 matrices, pose interpolation.
+
+Poses compose as ``a_T_c = a_T_b @ b_T_c`` ("a from c"); a 4x4 matrix maps homogeneous
+points of its right frame into its left frame. Everything here stays float64 because AV2
+city coordinates reach several km, where float32 loses millimetres.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+F64 = NDArray[np.float64]
+
+QUAT_EPS = 1e-12
+
+
+def quat_normalize(q_wxyz: ArrayLike) -> F64:
+    """Unit quaternion(s) with w >= 0; raises on a zero or non-finite quaternion."""
+    q = np.asarray(q_wxyz, dtype=np.float64)
+    n = np.linalg.norm(q, axis=-1, keepdims=True)
+    if not np.all(np.isfinite(q)) or np.any(n < QUAT_EPS):
+        raise ValueError(f"quaternion must be finite and non-zero, got {q.tolist()}")
+    q = q / n
+    return np.where(q[..., :1] < 0, -q, q)
+
+
+def quat_to_rot(q_wxyz: ArrayLike) -> F64:
+    """Rotation matrix (..., 3, 3) from (..., 4) quaternions (normalised first)."""
+    w, x, y, z = np.moveaxis(quat_normalize(q_wxyz), -1, 0)
+    return np.stack(
+        [
+            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
+        ],
+        -2,
+    )
+
+
+def rot_to_quat(R: ArrayLike) -> F64:
+    """Quaternion (w >= 0) from rotation matrices (..., 3, 3); Shepperd's stable branch choice."""
+    R = np.asarray(R, dtype=np.float64)
+    batch = R.shape[:-2]
+    R = R.reshape(-1, 3, 3)
+    tr = np.trace(R, axis1=1, axis2=2)
+    diag = np.stack([tr, R[:, 0, 0], R[:, 1, 1], R[:, 2, 2]], -1)
+    choice = np.argmax(diag, -1)
+    q = np.empty((R.shape[0], 4))
+    for i in range(R.shape[0]):
+        m = R[i]
+        c = choice[i]
+        if c == 0:
+            s = 2.0 * np.sqrt(max(1.0 + tr[i], 0.0))
+            q[i] = [0.25 * s, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s]
+        elif c == 1:
+            s = 2.0 * np.sqrt(max(1.0 + m[0, 0] - m[1, 1] - m[2, 2], 0.0))
+            q[i] = [(m[2, 1] - m[1, 2]) / s, 0.25 * s, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s]
+        elif c == 2:
+            s = 2.0 * np.sqrt(max(1.0 + m[1, 1] - m[0, 0] - m[2, 2], 0.0))
+            q[i] = [(m[0, 2] - m[2, 0]) / s, (m[0, 1] + m[1, 0]) / s, 0.25 * s, (m[1, 2] + m[2, 1]) / s]
+        else:
+            s = 2.0 * np.sqrt(max(1.0 + m[2, 2] - m[0, 0] - m[1, 1], 0.0))
+            q[i] = [(m[1, 0] - m[0, 1]) / s, (m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, 0.25 * s]
+    return quat_normalize(q).reshape(*batch, 4)
+
+
+def quat_multiply(a_wxyz: ArrayLike, b_wxyz: ArrayLike) -> F64:
+    """Hamilton product a * b (rotation b first, then a)."""
+    a = np.asarray(a_wxyz, dtype=np.float64)
+    b = np.asarray(b_wxyz, dtype=np.float64)
+    aw, ax, ay, az = np.moveaxis(a, -1, 0)
+    bw, bx, by, bz = np.moveaxis(b, -1, 0)
+    return np.stack(
+        [
+            aw * bw - ax * bx - ay * by - az * bz,
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+        ],
+        -1,
+    )
+
+
+def quat_slerp(q0_wxyz: ArrayLike, q1_wxyz: ArrayLike, t: ArrayLike) -> F64:
+    """Shortest-path spherical interpolation; falls back to normalised lerp for tiny angles."""
+    q0 = quat_normalize(q0_wxyz)
+    q1 = quat_normalize(q1_wxyz)
+    t = np.asarray(t, dtype=np.float64)[..., None]
+    dot = np.sum(q0 * q1, -1, keepdims=True)
+    q1 = np.where(dot < 0, -q1, q1)
+    dot = np.abs(dot)
+    theta = np.arccos(np.clip(dot, -1.0, 1.0))
+    sin_theta = np.sin(theta)
+    small = sin_theta < 1e-9
+    safe = np.where(small, 1.0, sin_theta)
+    w0 = np.where(small, 1.0 - t, np.sin((1.0 - t) * theta) / safe)
+    w1 = np.where(small, t, np.sin(t * theta) / safe)
+    return quat_normalize(w0 * q0 + w1 * q1)
+
+
+def make_T(R: ArrayLike, t: ArrayLike) -> F64:
+    """4x4 (or batched) homogeneous transform from rotation(s) and translation(s)."""
+    R = np.asarray(R, dtype=np.float64)
+    t = np.asarray(t, dtype=np.float64)
+    T = np.zeros(R.shape[:-2] + (4, 4))
+    T[..., :3, :3] = R
+    T[..., :3, 3] = t
+    T[..., 3, 3] = 1.0
+    return T
+
+
+def T_from_quat_trans(q_wxyz: ArrayLike, t: ArrayLike) -> F64:
+    """Transform from a (w, x, y, z) quaternion and a translation (batched)."""
+    return make_T(quat_to_rot(q_wxyz), t)
+
+
+def T_to_quat_trans(T: ArrayLike) -> tuple[F64, F64]:
+    """(quaternion wxyz, translation) of transform(s)."""
+    T = np.asarray(T, dtype=np.float64)
+    return rot_to_quat(T[..., :3, :3]), T[..., :3, 3].copy()
+
+
+def T_inverse(T: ArrayLike) -> F64:
+    """Exact rigid inverse (R^T, -R^T t), batched."""
+    T = np.asarray(T, dtype=np.float64)
+    Rt = np.swapaxes(T[..., :3, :3], -1, -2)
+    t = T[..., :3, 3]
+    return make_T(Rt, -np.einsum("...ij,...j->...i", Rt, t))
+
+
+def transform_points(a_T_b: ArrayLike, points_b: ArrayLike) -> F64:
+    """Map (N, 3) points from frame b into frame a."""
+    a_T_b = np.asarray(a_T_b, dtype=np.float64)
+    p = np.asarray(points_b, dtype=np.float64)
+    return p @ a_T_b[:3, :3].T + a_T_b[:3, 3]
+
+
+def translation_T(x: float = 0.0, y: float = 0.0, z: float = 0.0) -> F64:
+    """Pure translation transform."""
+    T = np.eye(4)
+    T[:3, 3] = (x, y, z)
+    return T
+
+
+def yaw_of(R: ArrayLike) -> float:
+    """Heading (rad, counter-clockwise about +z) of the rotated x-axis."""
+    R = np.asarray(R, dtype=np.float64)
+    return float(np.arctan2(R[1, 0], R[0, 0]))
+
+
+def interpolate_poses(
+    timestamps_ns: ArrayLike,
+    poses: ArrayLike,
+    query_ns: ArrayLike,
+    max_extrapolation_ns: int = 0,
+) -> F64:
+    """Poses at arbitrary timestamps: slerp on rotation, lerp on translation.
+
+    ``timestamps_ns`` must be sorted and strictly increasing (duplicates are removed by the
+    caller). Queries outside the table by up to ``max_extrapolation_ns`` clamp to the end
+    pose; further out is an error, because silently holding a pose would shift geometry.
+    Interpolation weights are computed from int64 differences so ns precision is kept.
+    """
+    ts = np.asarray(timestamps_ns, dtype=np.int64)
+    poses = np.asarray(poses, dtype=np.float64)
+    q = np.atleast_1d(np.asarray(query_ns, dtype=np.int64))
+    if ts.ndim != 1 or len(ts) == 0 or poses.shape != (len(ts), 4, 4):
+        raise ValueError("interpolate_poses needs N timestamps and (N, 4, 4) poses")
+    if len(ts) > 1 and np.any(np.diff(ts) <= 0):
+        raise ValueError("pose timestamps must be strictly increasing")
+    if not np.all(np.isfinite(poses)):
+        raise ValueError("pose table contains NaN/Inf")
+    lo_bad = q < ts[0] - max_extrapolation_ns
+    hi_bad = q > ts[-1] + max_extrapolation_ns
+    if np.any(lo_bad | hi_bad):
+        bad = q[lo_bad | hi_bad][0]
+        raise ValueError(
+            f"timestamp {bad} ns is outside the pose table [{ts[0]}, {ts[-1]}] "
+            f"by more than {max_extrapolation_ns} ns"
+        )
+    qc = np.clip(q, ts[0], ts[-1])
+    hi = np.clip(np.searchsorted(ts, qc, side="left"), 0, len(ts) - 1)
+    lo = np.clip(hi - 1, 0, len(ts) - 1)
+    exact = ts[hi] == qc
+    lo = np.where(exact, hi, lo)
+    span = (ts[hi] - ts[lo]).astype(np.float64)
+    alpha = np.where(span > 0, (qc - ts[lo]).astype(np.float64) / np.where(span > 0, span, 1.0), 0.0)
+    q_lo, t_lo = T_to_quat_trans(poses[lo])
+    q_hi, t_hi = T_to_quat_trans(poses[hi])
+    q_out = quat_slerp(q_lo, q_hi, alpha)
+    t_out = t_lo + alpha[:, None] * (t_hi - t_lo)
+    return T_from_quat_trans(q_out, t_out)
+
+
+def egoS_T_egoT_from_heights(source_origin_height_m: float, target_origin_height_m: float) -> F64:
+    """Frame alignment (paper eq. 1): both vehicle frames sit on the rear axle, x forward,
+    z up; they differ only in how high the origin is above the ground. A point at height h
+    above ground has z = h - origin_height in each frame."""
+    return translation_T(z=target_origin_height_m - source_origin_height_m)

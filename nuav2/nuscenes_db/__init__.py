@@ -1,0 +1,1 @@
+"""The nuScenes side: tables, tokens, map expansion, conformance checks."""

@@ -1,0 +1,240 @@
+"""Sensor rigs as data: cameras, lidars and the vehicle frame, loaded from ``rig_specs/*.json``.
+
+A rig spec is the only thing a user writes to get a dataset in a new camera layout, so the
+loader is strict: every error names the file and the field that is wrong.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from nuav2.geometry import F64, T_from_quat_trans, T_to_quat_trans, translation_T
+
+RIG_SPEC_DIR = Path(__file__).resolve().parent.parent / "rig_specs"
+CHANNEL_RE = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
+UNIT_QUAT_TOL = 1e-6
+
+
+class RigSpecError(ValueError):
+    """A rig spec file is malformed; the message names the file and field."""
+
+
+@dataclass(frozen=True)
+class CameraSpec:
+    """One pinhole camera: intrinsics at ``width`` x ``height`` and its pose in the ego frame."""
+
+    channel: str
+    width: int
+    height: int
+    K: F64
+    ego_T_cam: F64
+    # Polygons (pixel coordinates at this resolution) covering the ego vehicle's own body.
+    ego_mask_polygons: tuple[F64, ...] = ()
+
+    def scaled(self, scale: float) -> CameraSpec:
+        """Same camera at ``scale`` times the resolution; pixel centres map (x+0.5)*s-0.5."""
+        w = max(1, int(round(self.width * scale)))
+        h = max(1, int(round(self.height * scale)))
+        sx, sy = w / self.width, h / self.height
+        K = self.K.copy()
+        K[0, 0] *= sx
+        K[1, 1] *= sy
+        K[0, 2] = (K[0, 2] + 0.5) * sx - 0.5
+        K[1, 2] = (K[1, 2] + 0.5) * sy - 0.5
+        polys = tuple(np.column_stack([(p[:, 0] + 0.5) * sx - 0.5, (p[:, 1] + 0.5) * sy - 0.5])
+                      for p in self.ego_mask_polygons)
+        return replace(self, width=w, height=h, K=K, ego_mask_polygons=polys)
+
+    def ego_mask(self) -> np.ndarray:
+        """Boolean (H, W) image, True where the ego body hides the scene."""
+        import cv2
+
+        mask = np.zeros((self.height, self.width), np.uint8)
+        for poly in self.ego_mask_polygons:
+            cv2.fillPoly(mask, [np.round(poly).astype(np.int32)], 1)
+        return mask.astype(bool)
+
+
+@dataclass(frozen=True)
+class LidarSpec:
+    """A lidar (real or virtual) and its pose in the ego frame."""
+
+    channel: str
+    ego_T_lidar: F64
+
+
+@dataclass(frozen=True)
+class Rig:
+    """A vehicle's sensor layout. ``origin_height_m`` is the ego origin's height above ground."""
+
+    name: str
+    origin_height_m: float
+    cameras: tuple[CameraSpec, ...]
+    lidars: tuple[LidarSpec, ...]
+    keyframe_lidar: str
+    description: str = ""
+    source_path: str = ""
+    scale: float = 1.0
+    extra: dict = field(default_factory=dict, compare=False)
+
+    @property
+    def camera_channels(self) -> list[str]:
+        return [c.channel for c in self.cameras]
+
+    def camera(self, channel: str) -> CameraSpec:
+        for c in self.cameras:
+            if c.channel == channel:
+                return c
+        raise KeyError(f"rig {self.name!r} has no camera {channel!r}; it has {self.camera_channels}")
+
+    def lidar(self, channel: str) -> LidarSpec:
+        for lid in self.lidars:
+            if lid.channel == channel:
+                return lid
+        raise KeyError(f"rig {self.name!r} has no lidar {channel!r}")
+
+    def scaled(self, scale: float) -> Rig:
+        """Rig with every camera's resolution (and intrinsics) multiplied by ``scale``."""
+        if not scale > 0:
+            raise ValueError(f"scale must be > 0, got {scale}")
+        return replace(self, cameras=tuple(c.scaled(scale) for c in self.cameras), scale=self.scale * scale)
+
+    def with_origin_height(self, origin_height_m: float) -> Rig:
+        """Same physical sensors expressed in a vehicle frame whose origin is at another height."""
+        oldT_new = translation_T(z=origin_height_m - self.origin_height_m)
+        newT_old = np.linalg.inv(oldT_new)
+        cams = tuple(replace(c, ego_T_cam=newT_old @ c.ego_T_cam) for c in self.cameras)
+        lids = tuple(replace(lid, ego_T_lidar=newT_old @ lid.ego_T_lidar) for lid in self.lidars)
+        return replace(self, cameras=cams, lidars=lids, origin_height_m=origin_height_m)
+
+    def with_cameras(self, cameras: tuple[CameraSpec, ...]) -> Rig:
+        return replace(self, cameras=cameras)
+
+    def to_dict(self) -> dict:
+        """Serialisable form, the inverse of :func:`rig_from_dict` (at scale 1)."""
+        cams = []
+        for c in self.cameras:
+            q, t = T_to_quat_trans(c.ego_T_cam)
+            cams.append({
+                "channel": c.channel, "width": c.width, "height": c.height,
+                "fx": float(c.K[0, 0]), "fy": float(c.K[1, 1]), "cx": float(c.K[0, 2]), "cy": float(c.K[1, 2]),
+                "translation": t.tolist(), "rotation": q.tolist(),
+                "ego_mask_polygons": [p.tolist() for p in c.ego_mask_polygons],
+            })
+        lids = []
+        for lid in self.lidars:
+            q, t = T_to_quat_trans(lid.ego_T_lidar)
+            lids.append({"channel": lid.channel, "translation": t.tolist(), "rotation": q.tolist()})
+        return {"name": self.name, "description": self.description, "origin_height_m": self.origin_height_m,
+                "keyframe_lidar": self.keyframe_lidar, "cameras": cams, "lidars": lids}
+
+
+def _need(d: dict, key: str, where: str, src: str):
+    if not isinstance(d, dict) or key not in d:
+        raise RigSpecError(f"{src}: missing field '{where}{key}'")
+    return d[key]
+
+
+def _number(v, where: str, src: str) -> float:
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v):
+        raise RigSpecError(f"{src}: field '{where}' must be a finite number, got {v!r}")
+    return float(v)
+
+
+def _vector(v, n: int, where: str, src: str) -> np.ndarray:
+    if not isinstance(v, (list, tuple)) or len(v) != n:
+        raise RigSpecError(f"{src}: field '{where}' must be a list of {n} numbers, got {v!r}")
+    return np.array([_number(x, f"{where}[{i}]", src) for i, x in enumerate(v)])
+
+
+def _pose(d: dict, where: str, src: str) -> np.ndarray:
+    t = _vector(_need(d, "translation", where, src), 3, where + "translation", src)
+    q = _vector(_need(d, "rotation", where, src), 4, where + "rotation", src)
+    norm = float(np.linalg.norm(q))
+    if abs(norm - 1.0) > UNIT_QUAT_TOL:
+        raise RigSpecError(f"{src}: field '{where}rotation' is not a unit quaternion (norm {norm:.9f})")
+    return T_from_quat_trans(q, t)
+
+
+def _channel(d: dict, where: str, src: str, seen: set[str]) -> str:
+    ch = _need(d, "channel", where, src)
+    if not isinstance(ch, str) or not CHANNEL_RE.match(ch):
+        raise RigSpecError(f"{src}: field '{where}channel' must match {CHANNEL_RE.pattern}, got {ch!r}")
+    if ch in seen:
+        raise RigSpecError(f"{src}: field '{where}channel' repeats channel {ch!r}")
+    seen.add(ch)
+    return ch
+
+
+def rig_from_dict(spec: dict, src: str = "<dict>") -> Rig:
+    """Validate and build a :class:`Rig`; every error names ``src`` and the field."""
+    if not isinstance(spec, dict):
+        raise RigSpecError(f"{src}: top level must be a JSON object")
+    name = _need(spec, "name", "", src)
+    origin_h = _number(_need(spec, "origin_height_m", "", src), "origin_height_m", src)
+    cams_raw = _need(spec, "cameras", "", src)
+    if not isinstance(cams_raw, list) or not cams_raw:
+        raise RigSpecError(f"{src}: field 'cameras' must be a non-empty list")
+    seen: set[str] = set()
+    cameras = []
+    for i, c in enumerate(cams_raw):
+        w = f"cameras[{i}]."
+        ch = _channel(c, w, src, seen)
+        width = _need(c, "width", w, src)
+        height = _need(c, "height", w, src)
+        for key, v in (("width", width), ("height", height)):
+            if not isinstance(v, int) or isinstance(v, bool) or v <= 0:
+                raise RigSpecError(f"{src}: field '{w}{key}' must be a positive integer, got {v!r}")
+        fx, fy = (_number(_need(c, k, w, src), w + k, src) for k in ("fx", "fy"))
+        for key, v in (("fx", fx), ("fy", fy)):
+            if v <= 0:
+                raise RigSpecError(f"{src}: field '{w}{key}' must be a positive focal length, got {v}")
+        cx, cy = (_number(_need(c, k, w, src), w + k, src) for k in ("cx", "cy"))
+        K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+        polys = []
+        for j, p in enumerate(c.get("ego_mask_polygons", [])):
+            arr = np.asarray(p, dtype=np.float64)
+            if arr.ndim != 2 or arr.shape[1] != 2 or len(arr) < 3 or not np.all(np.isfinite(arr)):
+                raise RigSpecError(f"{src}: field '{w}ego_mask_polygons[{j}]' must be >= 3 finite [x, y] points")
+            polys.append(arr)
+        cameras.append(CameraSpec(ch, width, height, K, _pose(c, w, src), tuple(polys)))
+    lidars = []
+    for i, lid in enumerate(_need(spec, "lidars", "", src)):
+        w = f"lidars[{i}]."
+        lidars.append(LidarSpec(_channel(lid, w, src, seen), _pose(lid, w, src)))
+    key_lidar = _need(spec, "keyframe_lidar", "", src)
+    if key_lidar not in {lid.channel for lid in lidars}:
+        raise RigSpecError(f"{src}: field 'keyframe_lidar' names unknown channel {key_lidar!r}")
+    known = {"name", "description", "origin_height_m", "keyframe_lidar", "cameras", "lidars", "extra"}
+    unknown = sorted(set(spec) - known)
+    if unknown:
+        raise RigSpecError(f"{src}: unknown top-level field(s) {unknown}")
+    return Rig(name=str(name), origin_height_m=origin_h, cameras=tuple(cameras), lidars=tuple(lidars),
+               keyframe_lidar=key_lidar, description=str(spec.get("description", "")), source_path=src,
+               extra=dict(spec.get("extra", {})))
+
+
+def available_rigs() -> list[str]:
+    return sorted(p.stem for p in RIG_SPEC_DIR.glob("*.json"))
+
+
+def load_rig(name_or_path: str | Path, scale: float = 1.0) -> Rig:
+    """Load a rig by built-in name (``nuscenes``, ``av2``, ...) or by JSON path, optionally scaled."""
+    p = Path(name_or_path)
+    if not p.suffix:
+        p = RIG_SPEC_DIR / f"{name_or_path}.json"
+        if not p.exists():
+            raise RigSpecError(f"unknown rig {name_or_path!r}; built-in rigs: {available_rigs()}")
+    if not p.exists():
+        raise RigSpecError(f"{p}: rig spec file not found")
+    try:
+        spec = json.loads(p.read_text())
+    except json.JSONDecodeError as e:
+        raise RigSpecError(f"{p}: not valid JSON ({e})") from e
+    rig = rig_from_dict(spec, str(p))
+    return rig.scaled(scale) if scale != 1.0 else rig
