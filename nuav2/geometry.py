@@ -39,29 +39,29 @@ def quat_to_rot(q_wxyz: ArrayLike) -> F64:
 
 
 def rot_to_quat(R: ArrayLike) -> F64:
-    """Quaternion (w >= 0) from rotation matrices (..., 3, 3); Shepperd's stable branch choice."""
+    """Quaternion (w >= 0) from rotation matrices (..., 3, 3), vectorised.
+
+    Uses Shepperd's method: per matrix, the largest of (trace, R00, R11, R22) picks the
+    branch whose square root is well away from zero, so precision holds near 180 degrees.
+    """
     R = np.asarray(R, dtype=np.float64)
     batch = R.shape[:-2]
-    R = R.reshape(-1, 3, 3)
-    tr = np.trace(R, axis1=1, axis2=2)
-    diag = np.stack([tr, R[:, 0, 0], R[:, 1, 1], R[:, 2, 2]], -1)
-    choice = np.argmax(diag, -1)
-    q = np.empty((R.shape[0], 4))
-    for i in range(R.shape[0]):
-        m = R[i]
-        c = choice[i]
-        if c == 0:
-            s = 2.0 * np.sqrt(max(1.0 + tr[i], 0.0))
-            q[i] = [0.25 * s, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s]
-        elif c == 1:
-            s = 2.0 * np.sqrt(max(1.0 + m[0, 0] - m[1, 1] - m[2, 2], 0.0))
-            q[i] = [(m[2, 1] - m[1, 2]) / s, 0.25 * s, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s]
-        elif c == 2:
-            s = 2.0 * np.sqrt(max(1.0 + m[1, 1] - m[0, 0] - m[2, 2], 0.0))
-            q[i] = [(m[0, 2] - m[2, 0]) / s, (m[0, 1] + m[1, 0]) / s, 0.25 * s, (m[1, 2] + m[2, 1]) / s]
-        else:
-            s = 2.0 * np.sqrt(max(1.0 + m[2, 2] - m[0, 0] - m[1, 1], 0.0))
-            q[i] = [(m[1, 0] - m[0, 1]) / s, (m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, 0.25 * s]
+    m = R.reshape(-1, 3, 3)
+    m00, m01, m02 = m[:, 0, 0], m[:, 0, 1], m[:, 0, 2]
+    m10, m11, m12 = m[:, 1, 0], m[:, 1, 1], m[:, 1, 2]
+    m20, m21, m22 = m[:, 2, 0], m[:, 2, 1], m[:, 2, 2]
+    tr = m00 + m11 + m22
+    choice = np.argmax(np.stack([tr, m00, m11, m22], -1), -1)
+    cands = np.empty((4, len(m), 4))
+    s = 2.0 * np.sqrt(np.maximum(1.0 + tr, 1e-300))
+    cands[0] = np.stack([0.25 * s, (m21 - m12) / s, (m02 - m20) / s, (m10 - m01) / s], -1)
+    s = 2.0 * np.sqrt(np.maximum(1.0 + m00 - m11 - m22, 1e-300))
+    cands[1] = np.stack([(m21 - m12) / s, 0.25 * s, (m01 + m10) / s, (m02 + m20) / s], -1)
+    s = 2.0 * np.sqrt(np.maximum(1.0 + m11 - m00 - m22, 1e-300))
+    cands[2] = np.stack([(m02 - m20) / s, (m01 + m10) / s, 0.25 * s, (m12 + m21) / s], -1)
+    s = 2.0 * np.sqrt(np.maximum(1.0 + m22 - m00 - m11, 1e-300))
+    cands[3] = np.stack([(m10 - m01) / s, (m02 + m20) / s, (m12 + m21) / s, 0.25 * s], -1)
+    q = cands[choice, np.arange(len(m))]
     return quat_normalize(q).reshape(*batch, 4)
 
 

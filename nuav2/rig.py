@@ -122,7 +122,8 @@ class Rig:
             q, t = T_to_quat_trans(c.ego_T_cam)
             cams.append({
                 "channel": c.channel, "width": c.width, "height": c.height,
-                "fx": float(c.K[0, 0]), "fy": float(c.K[1, 1]), "cx": float(c.K[0, 2]), "cy": float(c.K[1, 2]),
+                "fx": float(c.K[0, 0]), "fy": float(c.K[1, 1]),
+                "cx": float(c.K[0, 2]), "cy": float(c.K[1, 2]),
                 "translation": t.tolist(), "rotation": q.tolist(),
                 "ego_mask_polygons": [p.tolist() for p in c.ego_mask_polygons],
             })
@@ -200,7 +201,8 @@ def rig_from_dict(spec: dict, src: str = "<dict>") -> Rig:
         for j, p in enumerate(c.get("ego_mask_polygons", [])):
             arr = np.asarray(p, dtype=np.float64)
             if arr.ndim != 2 or arr.shape[1] != 2 or len(arr) < 3 or not np.all(np.isfinite(arr)):
-                raise RigSpecError(f"{src}: field '{w}ego_mask_polygons[{j}]' must be >= 3 finite [x, y] points")
+                raise RigSpecError(
+                    f"{src}: field '{w}ego_mask_polygons[{j}]' must be >= 3 finite [x, y] points")
             polys.append(arr)
         cameras.append(CameraSpec(ch, width, height, K, _pose(c, w, src), tuple(polys)))
     lidars = []
