@@ -1,0 +1,45 @@
+"""Finding AV2 log directories under a split dir, a ``sensor/`` dir, a dataset root, or one log."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from converters.av2_errors import AV2LogError
+from converters.av2_poses import POSE_FILE
+
+SPLITS = ("train", "val", "test")
+
+
+def is_log_dir(path: Path) -> bool:
+    return (path / POSE_FILE).is_file()
+
+
+def _logs_in(split_dir: Path) -> list[Path]:
+    return sorted(p for p in split_dir.iterdir() if p.is_dir() and is_log_dir(p))
+
+
+def find_logs(src: Path) -> list[Path]:
+    """Log directories under ``src``, sorted (splits in train, val, test order).
+
+    ``src`` may be one log, a split dir holding logs, a ``sensor/`` dir holding train/val/test,
+    or the dataset root holding ``sensor/``.
+    """
+    src = Path(src)
+    if not src.is_dir():
+        raise AV2LogError(src, "not a directory")
+    if is_log_dir(src):
+        return [src]
+    if (src / "sensor").is_dir():
+        src = src / "sensor"
+    splits = [src / s for s in SPLITS if (src / s).is_dir()]
+    logs = [p for s in splits for p in _logs_in(s)] if splits else _logs_in(src)
+    if not logs:
+        raise AV2LogError(src, f"no AV2 logs found (a log dir holds {POSE_FILE}; looked in {src} "
+                               f"and its {'/'.join(SPLITS)} subdirectories)")
+    return logs
+
+
+def split_of(log_dir: Path) -> str:
+    """Source split name when the log sits in a train/val/test dir, else ''."""
+    parent = log_dir.absolute().parent.name
+    return parent if parent in SPLITS else ""
