@@ -1,0 +1,7 @@
+"""``python -m nuav2`` runs the CLI."""
+
+import sys
+
+from nuav2.cli import main
+
+sys.exit(main())

@@ -1,0 +1,36 @@
+"""``nuav2 validate DATAROOT --version V``: conformance check of a nuScenes database (exit 1 on problems)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from nuav2.nuscenes_db.validate import DEFAULT_MAX_PER_KIND, validate_database
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "validate", help="check a nuScenes database against what nuscenes-devkit and MapTR need",
+        description="Exit 0 with per-table counts if DATAROOT/VERSION conforms, else 1 with every problem "
+                    "grouped by table (at most --max-per-kind of each kind listed).")
+    p.add_argument("dataroot", type=Path, help="nuScenes dataroot (holds VERSION/, samples/, sweeps/, maps/)")
+    p.add_argument("--version", required=True, help="table folder under DATAROOT, e.g. v1.0-trainval")
+    p.add_argument("--no-files", action="store_true", help="skip sample_data files and map PNGs")
+    p.add_argument("--no-images", action="store_true", help="skip reading JPEG headers for width/height")
+    p.add_argument("--devkit", action="store_true", help="also instantiate NuScenes() and NuScenesMap()")
+    p.add_argument("--max-per-kind", type=int, default=DEFAULT_MAX_PER_KIND,
+                   help="problems listed per (table, field, check) kind; all are counted")
+    p.add_argument("--json", action="store_true", help="print the report as JSON")
+    p.add_argument("--quiet", action="store_true", help="no progress bar (shown only on a terminal anyway)")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    report = validate_database(args.dataroot, args.version, check_files=not args.no_files,
+                               check_images=not args.no_images, devkit=args.devkit,
+                               max_per_kind=args.max_per_kind,
+                               progress=not args.quiet and sys.stderr.isatty())
+    print(json.dumps(report.to_json(), indent=1) if args.json else report.format_text())
+    return 0 if report.ok else 1
