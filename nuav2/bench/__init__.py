@@ -1,0 +1,1 @@
+"""Benchmarks behind `nuav2 bench ...`: each times our path against a baseline in the same run."""

@@ -1,0 +1,57 @@
+"""``nuav2 convert av2 SRC OUT --mode native``: an AV2 split (or one log) -> a nuScenes dataroot."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from nuav2.cli import group
+
+
+def _run(args: argparse.Namespace) -> int:
+    from converters.av2_errors import AV2LogError
+    from nuav2.convert import REPORT_FILE, ConvertError, ConvertOptions, convert_av2
+
+    options = ConvertOptions(mode=args.mode, version=args.version, keyframe_hz=args.keyframe_hz,
+                             workers=args.workers, image_link=args.image_link,
+                             calibration_dir=args.calibration, require_cameras=not args.allow_missing_cameras,
+                             show_progress=not args.no_progress)
+    try:
+        report = convert_av2(args.src, args.out, options)
+    except (ConvertError, AV2LogError) as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    summary = {"dataroot": report.dataroot, "version": report.version, "converted": len(report.converted),
+               "resumed": len(report.resumed), "failed": len(report.failed),
+               "samples": report.table_counts.get("sample", 0), "report": str(Path(args.out) / REPORT_FILE)}
+    print(json.dumps(summary))
+    for f in report.failed:
+        print(f"failed: {f['log_dir']}: {f['error']}", file=sys.stderr)
+    return 1 if report.failed else 0
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    sub = group("convert", "convert a source dataset into a nuScenes database")
+    p = sub.add_parser("av2", help="Argoverse 2 sensor logs -> nuScenes database",
+                       description="Convert an AV2 split directory (or one log) into a nuScenes dataroot "
+                                   "OUT/<version>/*.json + samples/ + sweeps/ + maps/. Exit code 1 when "
+                                   "some logs failed (listed in OUT/convert_report.json; the others are "
+                                   "written), 2 when nothing could be converted.")
+    p.add_argument("src", type=Path, help="AV2 split dir, sensor/ dir, dataset root, or one log dir")
+    p.add_argument("out", type=Path, help="output nuScenes dataroot")
+    p.add_argument("--mode", choices=["native"], default="native",
+                   help="native: keep AV2's own cameras and images (the paper's AV2 baseline)")
+    p.add_argument("--version", default="v1.0-nuav2", help="table directory name (default: %(default)s)")
+    p.add_argument("--keyframe-hz", type=float, default=None,
+                   help="sample rate; default every LiDAR sweep (10 Hz); 2 gives nuScenes-like samples")
+    p.add_argument("--workers", type=int, default=1, help="parallel processes, one log each")
+    p.add_argument("--image-link", choices=["copy", "hardlink", "symlink"], default="copy",
+                   help="how native images reach OUT (default: %(default)s)")
+    p.add_argument("--calibration", type=Path, default=None,
+                   help="calibration dir (egovehicle_SE3_sensor + intrinsics) for logs that ship none")
+    p.add_argument("--allow-missing-cameras", action="store_true",
+                   help="convert logs without (all) camera images instead of reporting them as failed")
+    p.add_argument("--no-progress", action="store_true", help="no progress bars")
+    p.set_defaults(func=_run)

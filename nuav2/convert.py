@@ -1,0 +1,178 @@
+"""The conversion pipeline: find logs -> read each -> write one shard per log -> merge.
+
+Logs are independent, so ``workers`` processes each write their own shards; a log that fails
+(corrupt file, missing camera, ...) is recorded in the report and the others go on. A rerun
+skips logs whose shard is complete (same options), so a killed conversion resumes and ends
+with tables byte-identical to an uninterrupted run.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import multiprocessing
+import traceback
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+from tqdm import tqdm
+
+from nuav2.atomic import atomic_write_json
+from nuav2.nuscenes_db import shards as sh
+from nuav2.nuscenes_db.images import IMAGE_LINKS, NativeImages
+from nuav2.nuscenes_db.merge import merge_shards
+from nuav2.nuscenes_db.writer import WRITER_FORMAT, WriterOptions, output_rig_native, write_log
+
+log = logging.getLogger(__name__)
+
+MODES = ("native",)  # render mode (re-rendered cameras) plugs in an ImageSource + target rig
+REPORT_FILE = "convert_report.json"
+MAX_SCENES = 10_000  # scene names are scene-NNNN
+
+
+class ConvertError(RuntimeError):
+    """The conversion as a whole cannot go on (bad arguments, no log converted)."""
+
+
+@dataclass(frozen=True)
+class ConvertOptions:
+    mode: str = "native"
+    version: str = "v1.0-nuav2"
+    keyframe_hz: float | None = None  # None: every LiDAR sweep (10 Hz in AV2)
+    workers: int = 1
+    image_link: str = "copy"
+    calibration_dir: Path | None = None
+    require_cameras: bool = True
+    show_progress: bool = True
+
+    def check(self) -> None:
+        if self.mode not in MODES:
+            raise ConvertError(f"mode must be one of {MODES}, got {self.mode!r}")
+        if self.image_link not in IMAGE_LINKS:
+            raise ConvertError(f"image link must be one of {IMAGE_LINKS}, got {self.image_link!r}")
+        if self.keyframe_hz is not None and not self.keyframe_hz > 0:
+            raise ConvertError(f"keyframe rate must be > 0 Hz, got {self.keyframe_hz}")
+        if self.workers < 1:
+            raise ConvertError(f"workers must be >= 1, got {self.workers}")
+        if not self.version or "/" in self.version or self.version.startswith("."):
+            raise ConvertError(f"version must be a plain directory name, got {self.version!r}")
+        if self.calibration_dir is not None and not Path(self.calibration_dir).is_dir():
+            raise ConvertError(f"{self.calibration_dir}: calibration directory not found")
+
+    def fingerprint(self) -> str:
+        """Hash of everything that changes a shard's content; resume only reuses matching shards."""
+        key = {"writer": WRITER_FORMAT, "mode": self.mode, "keyframe_hz": self.keyframe_hz,
+               "images": NativeImages(self.image_link).fingerprint(),
+               "calibration": str(Path(self.calibration_dir).resolve()) if self.calibration_dir else None,
+               "require_cameras": self.require_cameras}
+        return hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()[:16]
+
+
+@dataclass
+class ConvertReport:
+    dataroot: str
+    version: str
+    converted: list[str] = field(default_factory=list)
+    resumed: list[str] = field(default_factory=list)
+    failed: list[dict] = field(default_factory=list)  # {"log_id", "log_dir", "error"}
+    scene_names: dict[str, str] = field(default_factory=dict)
+    table_counts: dict[str, int] = field(default_factory=dict)
+
+    @property
+    def ok(self) -> bool:
+        return not self.failed and bool(self.table_counts)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def scene_names_for(log_ids: list[str]) -> dict[str, str]:
+    """``scene-NNNN`` by sorted log id over every log found, so names do not depend on failures."""
+    if len(set(log_ids)) != len(log_ids):
+        dup = sorted({x for x in log_ids if log_ids.count(x) > 1})
+        raise ConvertError(f"log ids must be unique across splits; repeated: {dup}")
+    if len(log_ids) > MAX_SCENES:
+        raise ConvertError(f"{len(log_ids)} logs exceed the {MAX_SCENES} scene-NNNN names")
+    return {log_id: f"scene-{i:04d}" for i, log_id in enumerate(sorted(log_ids))}
+
+
+def convert_one_log(log_dir: Path, dataroot: Path, options: ConvertOptions) -> dict:
+    """Read, write and save the shard of one log; returns ``{"log_id", "error"}`` (error None on success).
+
+    Runs in a worker process: every failure of the log becomes a report entry, not an exception.
+    """
+    log_dir = Path(log_dir)
+    try:
+        from converters.av2 import read_log
+
+        scene = read_log(log_dir, options.calibration_dir, require_cameras=options.require_cameras)
+        images = NativeImages(options.image_link)
+        shard = write_log(scene, output_rig_native(scene), images, Path(dataroot),
+                          WriterOptions(keyframe_hz=options.keyframe_hz,
+                                        show_progress=options.show_progress and options.workers == 1))
+        sh.save_shard(sh.shard_dir(dataroot, options.version, log_dir.name), shard, options.fingerprint())
+        return {"log_id": log_dir.name, "log_dir": str(log_dir), "error": None}
+    except Exception as e:  # noqa: BLE001 - one bad log must not stop the others
+        log.debug("log %s failed:\n%s", log_dir, traceback.format_exc())
+        return {"log_id": log_dir.name, "log_dir": str(log_dir), "error": f"{type(e).__name__}: {e}"}
+
+
+def _run(jobs: list[Path], dataroot: Path, options: ConvertOptions) -> list[dict]:
+    bar = tqdm(total=len(jobs), desc="convert", unit="log", disable=not options.show_progress or not jobs)
+    results = []
+    try:
+        if options.workers == 1 or len(jobs) <= 1:
+            for log_dir in jobs:
+                results.append(convert_one_log(log_dir, dataroot, options))
+                bar.update()
+        else:
+            ctx = multiprocessing.get_context("spawn")
+            with ProcessPoolExecutor(max_workers=min(options.workers, len(jobs)), mp_context=ctx) as pool:
+                futures = [pool.submit(convert_one_log, d, dataroot, options) for d in jobs]
+                for fut in as_completed(futures):
+                    results.append(fut.result())
+                    bar.update()
+    finally:
+        bar.close()
+    return sorted(results, key=lambda r: r["log_id"])
+
+
+def convert_av2(src: Path, out: Path, options: ConvertOptions | None = None) -> ConvertReport:
+    """Convert an AV2 split dir (or one log) at ``src`` into a nuScenes dataroot at ``out``."""
+    from converters.av2 import find_logs
+
+    options = options or ConvertOptions()
+    options.check()
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    logs = find_logs(Path(src))
+    names = scene_names_for([p.name for p in logs])
+    report = ConvertReport(dataroot=str(out), version=options.version, scene_names=names)
+    fingerprint = options.fingerprint()
+
+    jobs = []
+    for log_dir in logs:
+        if sh.is_complete(sh.shard_dir(out, options.version, log_dir.name), fingerprint):
+            report.resumed.append(log_dir.name)
+        else:
+            jobs.append(log_dir)
+    if report.resumed:
+        log.info("resuming: %d of %d logs already have a complete shard", len(report.resumed), len(logs))
+    for r in _run(jobs, out, options):
+        if r["error"] is None:
+            report.converted.append(r["log_id"])
+        else:
+            log.error("log %s failed: %s", r["log_dir"], r["error"])
+            report.failed.append(r)
+
+    done = {x: sh.shard_dir(out, options.version, x) for x in report.converted + report.resumed}
+    try:
+        if done:
+            report.table_counts = merge_shards(out, options.version, done, {x: names[x] for x in done})
+    finally:
+        atomic_write_json(out / REPORT_FILE, report.to_dict(), indent=1)
+    if not done:
+        raise ConvertError(f"no log converted ({len(report.failed)} failed); see {out / REPORT_FILE}")
+    return report

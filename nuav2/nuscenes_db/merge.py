@@ -1,0 +1,97 @@
+"""Merge per-log shards into the final ``<dataroot>/<version>/`` tables.
+
+Tables are streamed shard by shard (a full AV2 split at 10 Hz samples has ~10M annotations,
+too many to hold as Python dicts), in scene-name order, so the bytes depend only on the
+shards and the names. The version directory is built beside the old one and swapped in by a
+rename: a killed merge leaves the previous database (or none), never a half-written one.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterable
+from pathlib import Path
+
+from nuav2.atomic import atomic_directory
+from nuav2.nuscenes_db import shards as sh
+from nuav2.nuscenes_db.tables import (
+    PER_LOG_TABLES,
+    TABLE_NAMES,
+    attribute_table,
+    category_table,
+    sensor_table,
+    visibility_table,
+)
+
+SPLITS_FILE = "splits.json"
+LOGS_FILE = "nuav2_logs.json"  # per-log facts the tables have no field for (city offset, source split)
+ALL_SPLIT = "all"
+
+
+def split_key(source: str, split: str) -> str:
+    """Name of a source split in ``splits.json``: prefixed, because the devkit reserves ``train``/``val``
+    /``test`` for nuScenes' own scene lists (and then asserts the version ends in ``trainval``)."""
+    return f"{source}_{split or 'unsplit'}"
+
+
+def _write_records(path: Path, chunks: Iterable[list[dict]]) -> int:
+    """Write a JSON list from chunks of records without holding them all; returns the count."""
+    n = 0
+    with open(path, "w", encoding="utf-8") as f:
+        f.write("[")
+        for records in chunks:
+            for r in records:
+                f.write(("" if n == 0 else ", ") + json.dumps(r, ensure_ascii=False))
+                n += 1
+        f.write("]")
+    return n
+
+
+def merge_shards(dataroot: Path, version: str, shard_paths: dict[str, Path],
+                 scene_names: dict[str, str]) -> dict[str, int]:
+    """Write the 13 tables + ``splits.json`` + ``nuav2_logs.json``; returns record counts per table.
+
+    ``shard_paths`` maps log id -> complete shard directory; ``scene_names`` gives each log's
+    ``scene-NNNN`` name and fixes the order.
+    """
+    if not shard_paths:
+        raise ValueError("nothing to merge: no log was converted")
+    missing = sorted(set(shard_paths) - set(scene_names))
+    if missing:
+        raise ValueError(f"no scene name for log(s) {missing}")
+    order = sorted(shard_paths, key=lambda log_id: (scene_names[log_id], log_id))
+    metas = {log_id: sh.read_meta(shard_paths[log_id]) for log_id in order}
+
+    channels: dict[str, str] = {}
+    for log_id, meta in metas.items():
+        for ch, modality in meta["channels"].items():
+            if channels.setdefault(ch, modality) != modality:
+                raise ValueError(f"channel {ch!r} is a {channels[ch]} elsewhere but a {modality} in {log_id}")
+
+    def per_log(table: str) -> Iterable[list[dict]]:
+        for log_id in order:
+            records = sh.read_table(shard_paths[log_id], table)
+            if table == "scene":
+                for r in records:
+                    r["name"] = scene_names[log_id]
+            yield records
+
+    counts: dict[str, int] = {}
+    dataroot = Path(dataroot)
+    with atomic_directory(dataroot / version) as tmp:
+        shared = {"category": category_table(), "attribute": attribute_table(),
+                  "visibility": visibility_table(), "sensor": sensor_table(channels)}
+        for table in TABLE_NAMES:
+            chunks = [shared[table]] if table in shared else per_log(table)
+            counts[table] = _write_records(tmp / f"{table}.json", chunks)
+        assert set(PER_LOG_TABLES) | set(shared) == set(TABLE_NAMES)
+
+        splits: dict[str, list[str]] = {}
+        for log_id in order:
+            m = metas[log_id]["meta"]
+            splits.setdefault(split_key(m["source"], m["split"]), []).append(scene_names[log_id])
+        splits[ALL_SPLIT] = [scene_names[log_id] for log_id in order]
+        (tmp / SPLITS_FILE).write_text(json.dumps(splits, indent=1))
+        logs = [{**metas[log_id]["meta"], "scene_name": scene_names[log_id]} for log_id in order]
+        (tmp / LOGS_FILE).write_text(json.dumps(logs, indent=1, ensure_ascii=False))
+    return counts

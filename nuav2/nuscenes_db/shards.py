@@ -1,0 +1,80 @@
+"""Per-log shards: one directory per converted log, renamed into place only when complete.
+
+A shard holds the log's per-log tables (one JSON file each) and ``meta.json``. A killed
+conversion leaves at most a ``.partial`` temp directory, never a shard, so a rerun redoes
+exactly the logs without a complete shard. The shard records the *fingerprint* of the
+options that produced it; a shard from other options is redone, not merged.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+
+from nuav2.atomic import atomic_directory
+from nuav2.nuscenes_db.tables import PER_LOG_TABLES
+from nuav2.nuscenes_db.writer import WRITER_FORMAT, LogShard
+
+SHARDS_DIRNAME = ".nuav2_shards"
+META_FILE = "meta.json"
+_SAFE_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*$")
+
+
+class ShardError(ValueError):
+    """A shard directory is unreadable or inconsistent; the message names the file."""
+
+
+def shard_root(dataroot: Path, version: str) -> Path:
+    return Path(dataroot) / SHARDS_DIRNAME / version
+
+
+def shard_dir(dataroot: Path, version: str, log_id: str) -> Path:
+    if not _SAFE_NAME.match(log_id):
+        raise ValueError(f"log id {log_id!r} is not usable as a directory name")
+    return shard_root(dataroot, version) / log_id
+
+
+def save_shard(path: Path, shard: LogShard, fingerprint: str) -> None:
+    """Write the shard's files into a temp directory, then rename it to ``path`` in one step."""
+    meta = {"format": WRITER_FORMAT, "fingerprint": fingerprint, "log_id": shard.log_id,
+            "channels": shard.channels, "meta": shard.meta}
+    with atomic_directory(path) as tmp:
+        for table in PER_LOG_TABLES:
+            (tmp / f"{table}.json").write_text(json.dumps(shard.tables[table], ensure_ascii=False))
+        (tmp / META_FILE).write_text(json.dumps(meta, ensure_ascii=False, indent=1))
+
+
+def read_meta(path: Path) -> dict:
+    f = Path(path) / META_FILE
+    try:
+        meta = json.loads(f.read_text())
+    except (OSError, json.JSONDecodeError) as e:
+        raise ShardError(f"{f}: unreadable shard metadata ({e})") from e
+    for key in ("format", "fingerprint", "log_id", "channels", "meta"):
+        if key not in meta:
+            raise ShardError(f"{f}: missing field '{key}'")
+    return meta
+
+
+def is_complete(path: Path, fingerprint: str) -> bool:
+    """True when ``path`` is a finished shard of the current writer format and these options."""
+    if not (Path(path) / META_FILE).is_file():
+        return False
+    try:
+        meta = read_meta(path)
+    except ShardError:
+        return False
+    return (meta["format"] == WRITER_FORMAT and meta["fingerprint"] == fingerprint
+            and all((Path(path) / f"{t}.json").is_file() for t in PER_LOG_TABLES))
+
+
+def read_table(path: Path, table: str) -> list[dict]:
+    f = Path(path) / f"{table}.json"
+    try:
+        records = json.loads(f.read_text())
+    except (OSError, json.JSONDecodeError) as e:
+        raise ShardError(f"{f}: unreadable shard table ({e})") from e
+    if not isinstance(records, list):
+        raise ShardError(f"{f}: a table must be a JSON list")
+    return records
