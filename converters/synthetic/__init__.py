@@ -1,0 +1,20 @@
+"""Synthetic AV2 sensor logs from a procedural world, and a ground-truth renderer for any rig.
+
+Public API (stable; reconstruction and warp code call it)::
+
+    from converters.synthetic import SynthConfig, generate_log, load_world, render_view
+
+    log_dir = generate_log(out_dir, seed=0)             # out_dir/train/<log_id>/ in AV2 layout
+    world = load_world(log_dir)                         # the world behind that log
+    img, depth = render_view(world, cam, city_T_cam, timestamp_ns, with_depth=True)
+    world.city_T_ego_at(ts); world.actor_poses_at(ts)   # ground-truth poses
+"""
+
+from converters.synthetic.config import SynthConfig
+from converters.synthetic.log_writer import generate_log
+from converters.synthetic.raycast import LidarReturns, cast_sweep
+from converters.synthetic.render import render_view
+from converters.synthetic.world import ActorPoses, SyntheticWorld, build_world, load_world
+
+__all__ = ["ActorPoses", "LidarReturns", "SynthConfig", "SyntheticWorld", "build_world", "cast_sweep",
+           "generate_log", "load_world", "render_view"]

@@ -1,0 +1,195 @@
+"""Ground-truth camera images of the synthetic world, for any pinhole camera at any pose.
+
+Independent of the splatting code on purpose: it is the yardstick reconstructions are
+measured against. Per pixel: the ray meets the flat ground (the BEV texture, mip-filtered by
+the pixel's ground footprint), the nearest box face, or the sky (a gradient by elevation).
+Boxes are z-buffered exact slab tests, pre-culled to their projected screen rectangles; where
+a painter's algorithm sorts whole boxes (and can misorder a long building against a car),
+this resolves every pixel to its nearest surface. A box crossing the near plane is tested on
+every pixel and a ray counts only hits beyond ``NEAR_Z``, so near-plane clipping is exact.
+Pixels under the camera's ego-mask polygons show the ego body, as on the real AV2 rig.
+
+Depth is the camera z-depth in metres (float32): inf for sky, 0 under the ego mask.
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+
+import numba
+import numpy as np
+
+from converters.synthetic.boxes import KIND_BUILDING, KIND_PEDESTRIAN, KIND_VEHICLE, BoxSet, intersect_rays
+from converters.synthetic.texture import sample_texture_point
+from converters.synthetic.world import SyntheticWorld
+from nuav2.geometry import F64, T_inverse
+from nuav2.rig import CameraSpec
+
+NEAR_Z = 0.05
+SUN_DIR = np.array([0.35, -0.45, 0.82]) / np.linalg.norm([0.35, -0.45, 0.82])
+SKY_TOP_SIN = float(np.sin(np.pi / 3))  # the sky gradient saturates at 60 degrees elevation
+SKY_HORIZON = np.array([205.0, 218.0, 232.0])
+SKY_ZENITH = np.array([88.0, 136.0, 205.0])
+EGO_BODY = np.array([52.0, 56.0, 64.0])
+GLASS = np.array([52.0, 62.0, 80.0])
+CAR_GLASS = np.array([30.0, 36.0, 44.0])
+TYRE = np.array([28.0, 28.0, 30.0])
+ROOF = np.array([118.0, 118.0, 115.0])
+TROUSERS = np.array([45.0, 50.0, 75.0])
+SKIN = np.array([205.0, 170.0, 140.0])
+FLOOR_M, WINDOW_PITCH_M = 3.2, 3.0
+# The 12 edges of a box as corner-index pairs (BoxSet.corners order: x-major sign bits).
+_EDGES = np.array([(i, j) for i in range(8) for j in range(i + 1, 8) if bin(i ^ j).count("1") == 1])
+
+
+@lru_cache(maxsize=64)
+def _pixel_rays(fx: float, fy: float, cx: float, cy: float, width: int, height: int) -> F64:
+    """(H*W, 3) camera-frame rays through pixel centres (OpenCV: pixel (u, v) is centred at (u, v)), z = 1."""
+    u, v = np.meshgrid(np.arange(width, dtype=np.float64), np.arange(height, dtype=np.float64))
+    rays = np.stack([(u - cx) / fx, (v - cy) / fy, np.ones_like(u)], -1).reshape(-1, 3)
+    rays.setflags(write=False)
+    return rays
+
+
+def _screen_rects(cam_T_local: F64, K: F64, width: int, height: int, boxes: BoxSet) -> tuple[np.ndarray, F64]:
+    """(N, 4) pixel rectangles (r0, r1, c0, c1; empty when r1 < r0) bounding each box's part in
+    front of the near plane, and a lower bound of the z-depth of any of its pixels.
+
+    The visible part of a box is the convex hull of its corners in front of the near plane and
+    of its edges' crossings of that plane, so projecting those points bounds it exactly."""
+    corners = boxes.corners() @ cam_T_local[:3, :3].T + cam_T_local[:3, 3]  # (N, 8, 3)
+    z = corners[..., 2]
+    a, b = corners[:, _EDGES[:, 0]], corners[:, _EDGES[:, 1]]  # (N, 12, 3)
+    za, zb = a[..., 2], b[..., 2]
+    crosses = (za > NEAR_Z) != (zb > NEAR_Z)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        f = np.where(crosses, (NEAR_Z - za) / np.where(crosses, zb - za, 1.0), 0.0)
+    cut = a + f[..., None] * (b - a)  # (N, 12, 3), on the near plane where ``crosses``
+    pts = np.concatenate([corners, cut], axis=1)  # (N, 20, 3)
+    use = np.concatenate([z > NEAR_Z, crosses], axis=1)
+    pz = np.where(use, pts[..., 2], 1.0)
+    u = np.where(use, (K[0, 0] * pts[..., 0] + K[0, 1] * pts[..., 1]) / pz + K[0, 2], np.nan)
+    v = np.where(use, K[1, 1] * pts[..., 1] / pz + K[1, 2], np.nan)
+    rects = np.zeros((len(boxes), 4), np.int64)
+    rects[:, 1] = -1  # empty by default
+    vis = use.any(axis=1)
+    if np.any(vis):
+        uv_, vv_ = u[vis], v[vis]
+        c0 = np.maximum(0, np.floor(np.nanmin(uv_, 1)) - 1)
+        c1 = np.minimum(width - 1, np.ceil(np.nanmax(uv_, 1)) + 1)
+        r0 = np.maximum(0, np.floor(np.nanmin(vv_, 1)) - 1)
+        r1 = np.minimum(height - 1, np.ceil(np.nanmax(vv_, 1)) + 1)
+        ok = (c0 <= c1) & (r0 <= r1)
+        rects[vis] = np.where(ok[:, None], np.column_stack([r0, r1, c0, c1]), [0, -1, 0, -1])
+    z_low = np.where(vis, np.maximum(z.min(axis=1), NEAR_Z), np.inf)
+    return rects, z_low
+
+
+@numba.njit(cache=True, inline="always")
+def _box_color(kind, color, axis, u, half_u, v, height):
+    """Base colour of a box surface point: facade windows, car glass and tyres, pedestrian clothes.
+
+    ``u`` is the horizontal coordinate on a side face (|u| <= half_u), ``v`` the height above
+    the box bottom; axis 2 is the top face."""
+    r, g, b = color[0], color[1], color[2]
+    side = axis != 2
+    if kind == KIND_BUILDING:
+        if not side:
+            return ROOF[0], ROOF[1], ROOF[2]
+        vf = v % FLOOR_M
+        uw = (u + half_u) % WINDOW_PITCH_M
+        if 0.9 < uw < 2.1 and 1.0 < vf < 2.4 and abs(u) < half_u - 0.8 and v < height - 0.8:
+            return GLASS[0], GLASS[1], GLASS[2]
+        if vf < 0.2 and v > 0.5:
+            return 0.8 * r, 0.8 * g, 0.8 * b
+    elif kind == KIND_VEHICLE:
+        if not side:
+            return 0.85 * r, 0.85 * g, 0.85 * b
+        if v < 0.2 * height:
+            return TYRE[0], TYRE[1], TYRE[2]
+        if 0.6 * height < v < 0.92 * height and abs(u) < 0.8 * half_u:
+            return CAR_GLASS[0], CAR_GLASS[1], CAR_GLASS[2]
+    elif kind == KIND_PEDESTRIAN:
+        if v < 0.47 * height:
+            return TROUSERS[0], TROUSERS[1], TROUSERS[2]
+        if v > 0.87 * height:
+            return SKIN[0], SKIN[1], SKIN[2]
+    return r, g, b
+
+
+@numba.njit(cache=True)
+def _shade_kernel(origin, dirs, hit_t, hit_box, hit_face, centers, rots, halves, colors, kinds,
+                  tex_data, tex_box, tex_levels, tex_meta, focal, rgb, depth):
+    """Per pixel: the nearest of box hit / ground hit / sky, its colour and its z-depth."""
+    for j in range(dirs.shape[0]):
+        dx, dy, dz = dirs[j, 0], dirs[j, 1], dirs[j, 2]
+        t_ground = np.inf
+        if abs(dz) > 1e-12:
+            t = -origin[2] / dz
+            if t > NEAR_Z:
+                t_ground = t
+        t_box = hit_t[j]
+        if t_box < t_ground:
+            i, face = hit_box[j], hit_face[j]
+            axis = face // 2
+            R = rots[i]
+            px = origin[0] + t_box * dx - centers[i, 0]
+            py = origin[1] + t_box * dy - centers[i, 1]
+            pz = origin[2] + t_box * dz - centers[i, 2]
+            bx = R[0, 0] * px + R[1, 0] * py + R[2, 0] * pz
+            by = R[0, 1] * px + R[1, 1] * py + R[2, 1] * pz
+            bz = R[0, 2] * px + R[1, 2] * py + R[2, 2] * pz
+            u = by if axis == 0 else bx
+            half_u = halves[i, 1] if axis == 0 else halves[i, 0]
+            r, g, b = _box_color(kinds[i], colors[i], axis, u, half_u, bz + halves[i, 2], 2 * halves[i, 2])
+            sign = 1.0 if face % 2 == 1 else -1.0
+            n_dot_sun = sign * (R[0, axis] * SUN_DIR[0] + R[1, axis] * SUN_DIR[1] + R[2, axis] * SUN_DIR[2])
+            shade = 0.45 + 0.55 * max(n_dot_sun, 0.0)
+            rgb[j, 0], rgb[j, 1], rgb[j, 2] = r * shade, g * shade, b * shade
+            depth[j] = t_box
+        elif t_ground < np.inf:
+            norm = np.sqrt(dx * dx + dy * dy + dz * dz)
+            footprint = t_ground / focal / np.sqrt(max(abs(dz) / norm, 1e-6))
+            sample_texture_point(tex_data, tex_box, tex_levels, tex_meta, origin[0] + t_ground * dx,
+                                 origin[1] + t_ground * dy, footprint, rgb, j)
+            depth[j] = t_ground
+        else:
+            elev = dz / np.sqrt(dx * dx + dy * dy + dz * dz)
+            s = min(max(elev / SKY_TOP_SIN, 0.0), 1.0) ** 0.7
+            for c in range(3):
+                rgb[j, c] = SKY_HORIZON[c] + (SKY_ZENITH[c] - SKY_HORIZON[c]) * s
+            depth[j] = np.inf
+
+
+def render_view(world: SyntheticWorld, cam: CameraSpec, city_T_cam: F64, timestamp_ns: int, *,
+                with_depth: bool = False):
+    """RGB uint8 (H, W, 3) of ``world`` seen by ``cam`` at ``city_T_cam`` (actors at ``timestamp_ns``);
+    with ``with_depth`` also the float32 (H, W) camera z-depth (inf: sky, 0: ego body)."""
+    city_T_cam = np.asarray(city_T_cam, np.float64)
+    if city_T_cam.shape != (4, 4) or not np.all(np.isfinite(city_T_cam)):
+        raise ValueError(f"city_T_cam must be a finite 4x4 matrix, got shape {city_T_cam.shape}")
+    w, h, K = cam.width, cam.height, cam.K
+    local_T_cam = world.local_T_city @ city_T_cam
+    cam_T_local = T_inverse(local_T_cam)
+    origin = np.ascontiguousarray(local_T_cam[:3, 3])
+    rays_cam = _pixel_rays(float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]), w, h)
+    dirs = rays_cam @ local_T_cam[:3, :3].T
+
+    boxes = world.boxes_at(int(timestamp_ns))
+    rects, z_near = _screen_rects(cam_T_local, K, w, h, boxes)
+    hits = intersect_rays(origin, dirs, boxes, t_min=NEAR_Z, rects=rects, image_width=w, t_lower=z_near)
+    rgb = np.empty((w * h, 3), np.float32)
+    depth = np.empty(w * h, np.float32)
+    _shade_kernel(origin, dirs, hits.t, hits.box, hits.face, np.ascontiguousarray(boxes.center),
+                  np.ascontiguousarray(boxes.rotations), np.ascontiguousarray(boxes.size / 2),
+                  np.ascontiguousarray(boxes.color, np.float64), np.ascontiguousarray(boxes.kind, np.int64),
+                  *world.texture.packed.arrays(), float(np.sqrt(K[0, 0] * K[1, 1])), rgb, depth)
+    img = np.clip(rgb + 0.5, 0, 255).astype(np.uint8).reshape(h, w, 3)
+    depth = depth.reshape(h, w)
+    if cam.ego_mask_polygons:
+        mask = cam.ego_mask()
+        rows = np.arange(h, dtype=np.float64)[:, None] / max(h - 1, 1)
+        body = EGO_BODY[None, None, :] * (0.8 + 0.4 * rows[..., None])
+        img[mask] = np.broadcast_to(body, (h, w, 3))[mask].astype(np.uint8)
+        depth[mask] = 0.0
+    return (img, depth) if with_depth else img
