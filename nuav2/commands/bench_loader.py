@@ -1,0 +1,56 @@
+"""``nuav2 bench loader DATAROOT --version V``: MapTR loader throughput with GT extraction, as JSON."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from nuav2.cli import group
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    sub = group("bench", "benchmarks")
+    p = sub.add_parser(
+        "loader",
+        help="MapTR-style dataset throughput (samples/s, map GT included)",
+        description="Times MapSampleDataset items (images, poses, vectorized GT, fixed-point "
+        "targets) against a bare devkit lookup + JPEG decode of the same keyframes.",
+    )
+    p.add_argument(
+        "dataroot",
+        type=Path,
+        nargs="?",
+        default=None,
+        help="nuScenes-format dataroot (default: convert a fresh synthetic AV2 log)",
+    )
+    p.add_argument("--version", default="v1.0-nuav2", help="table folder under DATAROOT")
+    p.add_argument("--split", default=None, help="split to read (default: the first in splits.json)")
+    p.add_argument("--samples", type=int, default=50, help="keyframes to time")
+    p.add_argument("--image-scale", type=float, default=1.0, help="resize images by this factor")
+    p.add_argument(
+        "--synthetic-seconds",
+        type=float,
+        default=2.0,
+        help="length of the synthetic log when no DATAROOT is given",
+    )
+    p.add_argument(
+        "--synthetic-image-scale",
+        type=float,
+        default=0.125,
+        help="AV2 camera resolution factor of the synthetic log",
+    )
+    p.add_argument("--json", action="store_true", help="print JSON only (the default output is JSON too)")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from nuav2.bench.loader import bench_loader, synthetic_dataroot
+
+    if args.dataroot is not None:
+        result = bench_loader(args.dataroot, args.version, args.split, args.samples, args.image_scale)
+    else:
+        with synthetic_dataroot(args.synthetic_seconds, args.synthetic_image_scale, args.version) as root:
+            result = bench_loader(root, args.version, args.split, args.samples, args.image_scale)
+    print(json.dumps(result, indent=None if args.json else 1))
+    return 0

@@ -1,0 +1,53 @@
+"""``nuav2 infos DATAROOT --version V --out DIR``: MapTRv2-compatible info .pkl files per split."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "infos",
+        help="export MapTRv2 info .pkl files (with vectorized map GT) for each split",
+        description="Writes {prefix}_map_infos_temporal_{split}.pkl for the splits in VERSION/splits.json "
+        "(or those given), in the layout MapTRv2's nuScenes dataset reads.",
+    )
+    p.add_argument("dataroot", type=Path, help="nuScenes-format dataroot")
+    p.add_argument("--version", required=True, help="table folder under DATAROOT")
+    p.add_argument("--out", required=True, type=Path, help="directory for the .pkl files")
+    p.add_argument("--prefix", default="nuav2", help="file name prefix (MapTR uses 'nuscenes')")
+    p.add_argument("--splits", nargs="+", default=None, help="split names (default: all in splits.json)")
+    p.add_argument("--max-sweeps", type=int, default=10, help="previous LIDAR_TOP sweeps per keyframe")
+    p.add_argument(
+        "--patch",
+        type=float,
+        nargs=2,
+        default=(60.0, 30.0),
+        metavar=("FORWARD_M", "SIDE_M"),
+        help="map patch size along lidar y (forward) and x (right)",
+    )
+    p.add_argument(
+        "--path-root",
+        default="",
+        help="prefix written instead of DATAROOT in file paths (e.g. ./data/nuav2 for MapTR)",
+    )
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from nuav2.maptr.infos import export_infos
+
+    written = export_infos(
+        args.dataroot,
+        args.version,
+        args.out,
+        args.prefix,
+        args.splits,
+        args.max_sweeps,
+        tuple(args.patch),
+        args.path_root,
+    )
+    print(json.dumps({split: str(path) for split, path in written.items()}, indent=1))
+    return 0
