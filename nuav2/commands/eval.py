@@ -1,0 +1,93 @@
+"""``nuav2 eval PRED.json``: chamfer AP of MapTR-format predictions against GT built from the map."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+
+log = logging.getLogger(__name__)
+
+
+def format_table(result: dict) -> str:
+    """A small text table: AP per class and threshold, and the two mAP conventions."""
+    thr = list(result["ap"][result["classes"][0]])
+    lines = [
+        f"{'class':<14}{'gts':>8}{'preds':>8}" + "".join(f"{'AP@' + t:>10}" for t in thr) + f"{'mean':>10}"
+    ]
+    for c in result["classes"]:
+        aps = "".join(f"{result['ap'][c][t]:>10.4f}" for t in thr)
+        lines.append(
+            f"{c:<14}{result['num_gts'][c]:>8}{result['num_preds'][c]:>8}{aps}"
+            f"{result['class_mean_ap'][c]:>10.4f}"
+        )
+    lines.append(
+        f"{'mAP (GT classes)':<30}" + "".join(f"{result['map_per_threshold'][t]:>10.4f}" for t in thr)
+    )
+    lines.append(f"mAP (headline, all classes): {result['mAP']:.4f}")
+    return "\n".join(lines)
+
+
+def _run(args: argparse.Namespace) -> int:
+    from nuav2.atomic import atomic_write_json
+    from nuav2.evaluate.chamfer_ap import evaluate_vectors, load_gt_file, load_predictions
+
+    preds = load_predictions(args.pred)
+    if args.gt_json:
+        gts = load_gt_file(args.gt_json)
+        source = str(args.gt_json)
+    else:
+        if not args.dataroot or not args.version:
+            print("nuav2 eval: --dataroot and --version are required (or give --gt-json)", file=sys.stderr)
+            return 2
+        from nuav2.maptr.vectorize import gt_vectors_for_split  # the map GT; never a cached file
+
+        gts = gt_vectors_for_split(args.dataroot, args.version, args.split, patch=tuple(args.patch))
+        source = f"{args.dataroot} {args.version} split {args.split} (from the map)"
+    try:
+        result = evaluate_vectors(
+            gts, preds, classes=args.classes, thresholds=args.thresholds, n_resample=args.n_resample
+        )
+    except ValueError as e:
+        print(f"nuav2 eval: {args.pred} against {source}: {e}", file=sys.stderr)
+        return 1
+    result["gt_source"] = source
+    result["predictions"] = str(args.pred)
+    if result["n_samples_without_predictions"]:
+        log.warning(
+            "%d of %d GT samples have no predictions (they count as misses)",
+            result["n_samples_without_predictions"],
+            result["n_samples"],
+        )
+    if args.out:
+        atomic_write_json(args.out, result, indent=1)
+    print(json.dumps(result) if args.json else format_table(result))
+    return 0
+
+
+def register(subparsers) -> None:
+    from nuav2.evaluate import MAP_CLASSES, MAP_THRESHOLDS_M
+
+    p = subparsers.add_parser("eval", help="chamfer-distance AP / mAP of map predictions (MapTR protocol)")
+    p.add_argument("pred", help="predictions: MapTR nuscmap_results.json ({'meta', 'results': [...]})")
+    p.add_argument("--dataroot", help="nuScenes-format dataroot whose map gives the GT")
+    p.add_argument("--version", help="database version, e.g. v1.0-trainval")
+    p.add_argument("--split", default="val", help="split name (<version>/splits.json, else the devkit's)")
+    p.add_argument(
+        "--gt-json", help="evaluate against this MapTR GT file ({'GTs': [...]}) instead of the map"
+    )
+    p.add_argument(
+        "--patch",
+        type=float,
+        nargs=2,
+        default=(60.0, 30.0),
+        metavar=("FORWARD_M", "RIGHT_M"),
+        help="GT patch size in the LIDAR_TOP frame (default 60 30)",
+    )
+    p.add_argument("--classes", nargs="+", default=list(MAP_CLASSES))
+    p.add_argument("--thresholds", type=float, nargs="+", default=list(MAP_THRESHOLDS_M))
+    p.add_argument("--n-resample", type=int, default=100, help="points per line for the chamfer distance")
+    p.add_argument("--out", help="also write the result JSON here (atomically)")
+    p.add_argument("--json", action="store_true", help="print the result as JSON instead of a table")
+    p.set_defaults(func=_run)

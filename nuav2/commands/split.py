@@ -1,0 +1,80 @@
+"""``nuav2 split DATAROOT --version V``: geo-disjoint train/val/test scenes and the leakage report."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+
+def _run(args: argparse.Namespace) -> int:
+    from nuav2 import splits as sp
+
+    table = sp.read_scene_table(args.dataroot, args.version)
+    scenes = sorted(table.positions)
+    report: dict = {
+        "dataroot": str(args.dataroot),
+        "version": args.version,
+        "existing": {
+            name: sp.split_summary(split, table, args.radius)
+            for name, split in sp.existing_splits(args.dataroot, args.version, scenes).items()
+        },
+    }
+    if not args.report_only:
+        if args.regions and args.lists:
+            print("nuav2 split: give at most one of --regions and --lists", file=sys.stderr)
+            return 2
+        if args.regions:
+            regions, straddle = sp.load_regions(args.regions)
+            result = sp.region_split(table.positions, table.city_of, regions, args.straddle or straddle)
+            method = {
+                "method": "regions",
+                "regions": str(args.regions),
+                "straddle": args.straddle or straddle,
+            }
+        elif args.lists:
+            result, unmatched = sp.list_split(table.identifiers, sp.load_lists(args.lists))
+            method = {"method": "lists", "lists": str(args.lists), "unmatched_entries": unmatched}
+        else:
+            result = sp.geo_split(table.positions, table.city_of, args.ratios, args.min_distance, args.seed)
+            method = {
+                "method": "geo",
+                "ratios": args.ratios,
+                "min_distance_m": args.min_distance,
+                "seed": args.seed,
+            }
+        report["new"] = {
+            **method,
+            **sp.split_summary(result, table, args.radius),
+            "discarded": result["discarded"],
+        }
+        report["written"] = str(sp.write_splits(args.dataroot, args.version, result, report))
+    print(json.dumps(report, indent=1))
+    return 0
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser("split", help="geo-disjoint train/val/test splits (+ leakage report)")
+    p.add_argument("dataroot", help="nuScenes-format dataroot (nuScenes, nuAV2, or both merged)")
+    p.add_argument("--version", required=True, help="database version, e.g. v1.0-trainval")
+    p.add_argument(
+        "--ratios",
+        type=float,
+        nargs=3,
+        default=[0.8, 0.1, 0.1],
+        metavar=("TRAIN", "VAL", "TEST"),
+        help="target shares of samples (default 0.8 0.1 0.1)",
+    )
+    p.add_argument(
+        "--min-distance",
+        type=float,
+        default=50.0,
+        help="no val/test sample within this many metres of a train sample (default 50)",
+    )
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--regions", help="JSON of val/test polygons per city (Lilja et al. style)")
+    p.add_argument("--straddle", choices=("drop", "train"), help="region mode: scenes crossing a boundary")
+    p.add_argument("--lists", help="JSON {train, val, test: [scene names, tokens or log ids]}")
+    p.add_argument("--radius", type=float, default=5.0, help="leakage radius in metres (default 5)")
+    p.add_argument("--report-only", action="store_true", help="only report the leakage of existing splits")
+    p.set_defaults(func=_run)
