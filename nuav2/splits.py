@@ -43,6 +43,9 @@ log = logging.getLogger(__name__)
 SPLITS = ("train", "val", "test")
 HOLDOUT = ("val", "test")
 DISCARDED = "discarded"
+GEO_PREFIX = "geo_"  # names this splitter writes into splits.json
+# Key prefixes of split groups in splits.json: plain, ours, and the converter's AV2 source splits.
+SPLIT_PREFIXES = ("", GEO_PREFIX, "av2_")
 LEAKAGE_RADIUS_M = 5.0
 
 Positions = Mapping[str, np.ndarray]  # scene name -> (N, 2) city xy of its samples
@@ -500,9 +503,12 @@ def existing_splits(
             data = json.loads(path.read_text())
         except (OSError, json.JSONDecodeError) as e:
             raise ValueError(f"{path}: cannot read splits ({e})") from None
-        if not isinstance(data, dict) or not all(isinstance(data.get(k, []), list) for k in SPLITS):
+        if not isinstance(data, dict) or not all(isinstance(v, list) for v in data.values()):
             raise ValueError(f"{path}: expected {{split name: [scene names]}}")
-        out["splits.json"] = {k: [s for s in data.get(k, []) if s in present] for k in SPLITS}
+        for prefix in SPLIT_PREFIXES:
+            if f"{prefix}train" in data:
+                out[f"splits.json:{prefix}*"] = {
+                    k: [s for s in data.get(f"{prefix}{k}", []) if s in present] for k in SPLITS}
     from nuscenes.utils.splits import create_splits_scenes
 
     builtin = create_splits_scenes()
@@ -519,10 +525,23 @@ def existing_splits(
 def write_splits(
     dataroot: str | Path, version: str, splits: Mapping[str, Sequence[str]], report: dict
 ) -> Path:
-    """Write ``<version>/splits.json`` ({split: [scene names]}) and ``splits_report.json``, atomically."""
+    """Add ``geo_train/geo_val/geo_test/geo_discarded`` to ``<version>/splits.json`` (other keys, e.g.
+    the converter's ``av2_*`` source splits, are kept) and write ``splits_report.json``, atomically.
+
+    The ``geo_`` prefix matters: the devkit resolves ``train``/``val``/``test`` from its own
+    hard-coded nuScenes lists and reads only other names from ``splits.json``.
+    """
     folder = Path(dataroot) / version
     path = folder / "splits.json"
-    atomic_write_json(path, {k: list(splits.get(k, [])) for k in (*SPLITS, DISCARDED)}, indent=1)
+    merged: dict[str, list[str]] = {}
+    if path.is_file():
+        try:
+            merged = json.loads(path.read_text())
+        except (OSError, json.JSONDecodeError) as e:
+            raise ValueError(f"{path}: cannot read existing splits ({e})") from None
+    for k in (*SPLITS, DISCARDED):
+        merged[f"{GEO_PREFIX}{k}"] = list(splits.get(k, []))
+    atomic_write_json(path, merged, indent=1)
     atomic_write_json(folder / "splits_report.json", report, indent=1)
     return path
 

@@ -362,14 +362,14 @@ def test_cli_writes_devkit_readable_splits_and_reports(tmp_path, capsys):
     )
     report = json.loads(capsys.readouterr().out)
     written = json.loads((tmp_path / "v1.0-mini" / "splits.json").read_text())
-    assert set(written) == {"train", "val", "test", "discarded"}
+    assert {"geo_train", "geo_val", "geo_test", "geo_discarded"} <= set(written)
     assert report["new"]["leakage"]["val"]["within_radius"] == 0
     # The devkit's built-in split of these scene names puts scene-0003 in val, 3 m from scene-0002 (train).
     devkit_val = report["existing"]["devkit"]["leakage"]["val"]
     assert devkit_val == {"samples": 10, "within_radius": 10, "share": 1.0}
     assert report["new"]["scenes"]["val"] >= 1 and report["new"]["scenes"]["test"] >= 1
     nusc = NuScenes(version="v1.0-mini", dataroot=str(tmp_path), verbose=False)
-    assert get_scenes_of_custom_split("discarded", nusc) == written["discarded"]
+    assert get_scenes_of_custom_split("geo_val", nusc) == written["geo_val"]
     assert json.loads((tmp_path / "v1.0-mini" / "splits_report.json").read_text())["new"]["method"] == "geo"
 
     # A leaky split given as lists: scene-0003 sits 3 m from scene-0002.
@@ -383,5 +383,5 @@ def test_cli_writes_devkit_readable_splits_and_reports(tmp_path, capsys):
     assert report["new"]["unmatched_entries"] == ["missing"]
     assert main(["split", str(tmp_path), "--version", "v1.0-mini", "--report-only"]) == 0
     report = json.loads(capsys.readouterr().out)
-    assert report["existing"]["splits.json"]["leakage"]["val"]["share"] == 1.0
+    assert report["existing"]["splits.json:geo_*"]["leakage"]["val"]["share"] == 1.0
     assert "new" not in report

@@ -6,7 +6,8 @@ map and pose coordinates are >= ``MARGIN_M`` (the devkit's mask PNG puts (0, 0) 
 bottom-left corner). z is kept as the city height. Because each location covers only its
 own log's map (~100 m around the trajectory), each semantic-prior PNG stays a few thousand
 pixels wide however many logs a city split has; the true city coordinates are
-``global + city_xy_offset`` and are written into the log record's ``logfile`` sidecar.
+``global + city_xy_offset``, written to ``<version>/nuav2_logs.json`` and to the
+expansion JSON's ``nuav2`` block.
 """
 
 from __future__ import annotations
