@@ -20,14 +20,15 @@ from pathlib import Path
 from tqdm import tqdm
 
 from nuav2.atomic import atomic_write_json
+from nuav2.image_sources import MODES, image_source_for, write_quality_table
 from nuav2.nuscenes_db import shards as sh
 from nuav2.nuscenes_db.images import IMAGE_LINKS, NativeImages
 from nuav2.nuscenes_db.merge import merge_shards
-from nuav2.nuscenes_db.writer import WRITER_FORMAT, WriterOptions, output_rig_native, write_log
+from nuav2.nuscenes_db.writer import WRITER_FORMAT, WriterOptions, write_log
+from nuav2.rig import RigSpecError, load_rig
 
 log = logging.getLogger(__name__)
 
-MODES = ("native",)  # render mode (re-rendered cameras) plugs in an ImageSource + target rig
 REPORT_FILE = "convert_report.json"
 MAX_SCENES = 10_000  # scene names are scene-NNNN
 
@@ -46,6 +47,9 @@ class ConvertOptions:
     calibration_dir: Path | None = None
     require_cameras: bool = True
     show_progress: bool = True
+    rig: str = "nuscenes"  # warp / render: target rig name or spec path
+    scale: float = 1.0  # warp / render: target resolution factor
+    recon_preset: str = "default"  # render: reconstruction budget preset
 
     def check(self) -> None:
         if self.mode not in MODES:
@@ -60,11 +64,25 @@ class ConvertOptions:
             raise ConvertError(f"version must be a plain directory name, got {self.version!r}")
         if self.calibration_dir is not None and not Path(self.calibration_dir).is_dir():
             raise ConvertError(f"{self.calibration_dir}: calibration directory not found")
+        if self.mode != "native":
+            if not self.scale > 0:
+                raise ConvertError(f"scale must be > 0, got {self.scale}")
+            try:
+                load_rig(self.rig)
+            except RigSpecError as e:
+                raise ConvertError(str(e)) from e
+
+    def _rig_key(self) -> str:
+        """A rig named by path is identified by its content, so editing the spec redoes the shards."""
+        p = Path(self.rig)
+        return hashlib.sha256(p.read_bytes()).hexdigest()[:16] if p.suffix and p.is_file() else self.rig
 
     def fingerprint(self) -> str:
         """Hash of everything that changes a shard's content; resume only reuses matching shards."""
         key = {"writer": WRITER_FORMAT, "mode": self.mode, "keyframe_hz": self.keyframe_hz,
-               "images": NativeImages(self.image_link).fingerprint(),
+               "images": NativeImages(self.image_link).fingerprint() if self.mode == "native" else None,
+               "target": None if self.mode == "native" else [self._rig_key(), self.scale],
+               "recon": self.recon_preset if self.mode == "render" else None,
                "calibration": str(Path(self.calibration_dir).resolve()) if self.calibration_dir else None,
                "require_cameras": self.require_cameras}
         return hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()[:16]
@@ -108,10 +126,15 @@ def convert_one_log(log_dir: Path, dataroot: Path, options: ConvertOptions) -> d
         from converters.av2 import read_log
 
         scene = read_log(log_dir, options.calibration_dir, require_cameras=options.require_cameras)
-        images = NativeImages(options.image_link)
-        shard = write_log(scene, output_rig_native(scene), images, Path(dataroot),
+        out_rig, images = image_source_for(scene, options.mode, Path(dataroot), image_link=options.image_link,
+                                           rig=options.rig, scale=options.scale,
+                                           recon_preset=options.recon_preset)
+        shard = write_log(scene, out_rig, images, Path(dataroot),
                           WriterOptions(keyframe_hz=options.keyframe_hz,
                                         show_progress=options.show_progress and options.workers == 1))
+        quality = getattr(images, "by_file", None)
+        if quality:
+            shard.meta["image_quality"] = dict(sorted(quality.items()))
         sh.save_shard(sh.shard_dir(dataroot, options.version, log_dir.name), shard, options.fingerprint())
         return {"log_id": log_dir.name, "log_dir": str(log_dir), "error": None}
     except Exception as e:  # noqa: BLE001 - one bad log must not stop the others
@@ -171,6 +194,10 @@ def convert_av2(src: Path, out: Path, options: ConvertOptions | None = None) -> 
     try:
         if done:
             report.table_counts = merge_shards(out, options.version, done, {x: names[x] for x in done})
+            quality: dict[str, float] = {}
+            for shard_path in done.values():
+                quality.update(sh.read_meta(shard_path)["meta"].get("image_quality", {}))
+            write_quality_table(out, options.version, quality)
     finally:
         atomic_write_json(out / REPORT_FILE, report.to_dict(), indent=1)
     if not done:

@@ -17,7 +17,8 @@ def _run(args: argparse.Namespace) -> int:
     options = ConvertOptions(mode=args.mode, version=args.version, keyframe_hz=args.keyframe_hz,
                              workers=args.workers, image_link=args.image_link,
                              calibration_dir=args.calibration, require_cameras=not args.allow_missing_cameras,
-                             show_progress=not args.no_progress)
+                             show_progress=not args.no_progress, rig=args.rig, scale=args.scale,
+                             recon_preset=args.recon_preset)
     try:
         report = convert_av2(args.src, args.out, options)
     except (ConvertError, AV2LogError) as e:
@@ -41,8 +42,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                                    "written), 2 when nothing could be converted.")
     p.add_argument("src", type=Path, help="AV2 split dir, sensor/ dir, dataset root, or one log dir")
     p.add_argument("out", type=Path, help="output nuScenes dataroot")
-    p.add_argument("--mode", choices=["native"], default="native",
-                   help="native: keep AV2's own cameras and images (the paper's AV2 baseline)")
+    p.add_argument("--mode", choices=["native", "warp", "render"], default="native",
+                   help="native: keep AV2's own cameras and images (the paper's AV2 baseline); "
+                        "warp: fast depth-warp of the source images into the target rig; "
+                        "render: Gaussian-splat reconstruction rendered in the target rig (nuAV2)")
+    p.add_argument("--rig", default="nuscenes",
+                   help="warp/render: target rig, a name in rig_specs/ or a spec path (default: %(default)s)")
+    p.add_argument("--scale", type=float, default=1.0,
+                   help="warp/render: target image resolution factor, e.g. 0.25 (default: %(default)s)")
+    p.add_argument("--recon-preset", default="default",
+                   help="render: reconstruction budget preset (see docs/reconstruction.md)")
     p.add_argument("--version", default="v1.0-nuav2", help="table directory name (default: %(default)s)")
     p.add_argument("--keyframe-hz", type=float, default=None,
                    help="sample rate; default every LiDAR sweep (10 Hz); 2 gives nuScenes-like samples")
