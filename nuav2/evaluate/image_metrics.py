@@ -108,16 +108,41 @@ def ssim(a, b, data_range: float = 1.0, channel_axis: int | None = -1) -> float:
     """SSIM of two images given as numpy arrays or tensors: (H, W), or with a channel axis.
 
     ``channel_axis`` names the channel axis of a 3-D image (default last: (H, W, C));
-    use ``channel_axis=0`` for (C, H, W). Computed in float64.
+    use ``channel_axis=0`` for (C, H, W). Computed in float64 with OpenCV's separable
+    filter (torch's float64 grouped conv2d is ~100x slower on CPU); same maths as
+    :func:`ssim_torch`.
     """
+    import cv2
+
     _check_pair(a, b, "ssim")
-    ta, tb = _to_tensor(a).double(), _to_tensor(b).double()
-    if ta.ndim == 2:
-        ta, tb = ta[None], tb[None]
-    elif ta.ndim == 3:
+    if data_range <= 0:
+        raise ValueError(f"ssim: data_range must be > 0, got {data_range}")
+    na = a.detach().cpu().double().numpy() if isinstance(a, torch.Tensor) else np.asarray(a, np.float64)
+    nb = b.detach().cpu().double().numpy() if isinstance(b, torch.Tensor) else np.asarray(b, np.float64)
+    if na.ndim == 2:
+        na, nb = na[None], nb[None]
+    elif na.ndim == 3:
         if channel_axis is None:
             raise ValueError("ssim: a 3-D image needs channel_axis")
-        ta, tb = torch.movedim(ta, channel_axis, 0), torch.movedim(tb, channel_axis, 0)
+        na, nb = np.moveaxis(na, channel_axis, 0), np.moveaxis(nb, channel_axis, 0)
     else:
-        raise ValueError(f"ssim: expected a 2-D or 3-D image, got shape {tuple(ta.shape)}")
-    return float(ssim_torch(ta[None], tb[None], data_range=data_range))
+        raise ValueError(f"ssim: expected a 2-D or 3-D image, got shape {na.shape}")
+    if min(na.shape[-2:]) < WINDOW_SIZE:
+        raise ValueError(f"ssim: images must be at least {WINDOW_SIZE}x{WINDOW_SIZE}, got {na.shape[-2:]}")
+    w = gaussian_window_1d().numpy()
+    r = WINDOW_SIZE // 2
+
+    def blur(x: np.ndarray) -> np.ndarray:
+        return cv2.sepFilter2D(np.ascontiguousarray(x), cv2.CV_64F, w, w, borderType=cv2.BORDER_CONSTANT)[
+            r:-r, r:-r]
+
+    c1, c2 = (K1 * data_range) ** 2, (K2 * data_range) ** 2
+    means = []
+    for x, y in zip(na, nb):
+        mu_a, mu_b = blur(x), blur(y)
+        var_a = blur(x * x) - mu_a**2
+        var_b = blur(y * y) - mu_b**2
+        cov = blur(x * y) - mu_a * mu_b
+        m = ((2 * mu_a * mu_b + c1) * (2 * cov + c2)) / ((mu_a**2 + mu_b**2 + c1) * (var_a + var_b + c2))
+        means.append(m.mean())
+    return float(np.mean(means))
