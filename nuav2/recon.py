@@ -1,0 +1,209 @@
+"""Top-level reconstruction API: ``reconstruct(scene, config) -> SplatScene`` and the writer's provider.
+
+    from nuav2.recon import ReconConfig, reconstruct, render_provider
+    splat = reconstruct(scene_log, ReconConfig.fast())
+    source = render_provider(splat, min_confidence=0.5)   # a writer ImageSource for --mode render
+
+Reconstruction = seed (LiDAR, ground, colours, sky; :mod:`nuav2.splat.init`) then optimise
+(:mod:`nuav2.splat.train`). The returned scene carries its source cameras in ``info`` so the
+quality gate can judge target renders without the log.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from nuav2.scene import SceneLog
+from nuav2.splat.densify import DensifyConfig
+from nuav2.splat.init import InitConfig, SourceView, initial_scene, source_views
+from nuav2.splat.quality import QualityConfig, SourceCoverage
+from nuav2.splat.render_target import SplatImageSource, SplatRenderer
+from nuav2.splat.scene_model import SplatScene
+from nuav2.splat.train import CHECKPOINT_FILE, TrainConfig, Trainer
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class ReconConfig:
+    """Everything that shapes a reconstruction.
+
+    Training resolution: ``image_scale`` x the log's camera images when given, else scaled so the
+    widest camera is ``train_width_px`` wide (256 px = the default synthetic log's own size,
+    1/8 of a real AV2 ring camera), so one preset fits synthetic and real logs alike.
+    """
+
+    image_scale: float | None = None
+    train_width_px: int = 256
+    frame_stride: int = 1  # use every k-th image of each camera
+    holdout_every: int = 0  # hold out every k-th image of each camera (0: none) for evaluation
+    channels: tuple[str, ...] | None = None  # source cameras (None: all ring cameras of the rig)
+    sh_degree: int = 1
+    seed: int = 0
+    threads: int = 2
+    init: InitConfig = field(default_factory=InitConfig)
+    train: TrainConfig = field(default_factory=TrainConfig)
+    quality: QualityConfig = field(default_factory=QualityConfig)
+
+    def __post_init__(self) -> None:
+        if self.image_scale is not None and not self.image_scale > 0:
+            raise ValueError(f"ReconConfig.image_scale must be > 0, got {self.image_scale}")
+        if self.train_width_px < 8:
+            raise ValueError(f"ReconConfig.train_width_px must be >= 8, got {self.train_width_px}")
+        if self.frame_stride < 1 or self.holdout_every < 0:
+            raise ValueError("ReconConfig.frame_stride must be >= 1 and holdout_every >= 0")
+        if not 0 <= self.sh_degree <= 3:
+            raise ValueError(f"ReconConfig.sh_degree must be in 0..3, got {self.sh_degree}")
+
+    @staticmethod
+    def fast() -> ReconConfig:
+        """CI-sized demo: ~1-2 min on 2 cores for the default synthetic log (2 s, 1/8-res cameras)."""
+        return ReconConfig(
+            frame_stride=2, sh_degree=0,
+            init=InitConfig(max_background=60_000, ground_spacing_m=0.3, ground_radius_m=25.0),
+            train=TrainConfig(iterations=600, pyramid=(0.5, 1.0), pyramid_until=(0.3,),
+                              densify=DensifyConfig(start=100, every=100, stop=500, budget=90_000,
+                                                    reset_every=0)))
+
+    @staticmethod
+    def default() -> ReconConfig:
+        """The quality setting the benchmark reports as 'default' (minutes on 2 cores, synthetic log)."""
+        return ReconConfig(
+            train=TrainConfig(iterations=2000, pyramid=(0.5, 1.0), pyramid_until=(0.25,),
+                              densify=DensifyConfig(start=100, every=100, stop=1600, budget=200_000,
+                                                    reset_every=0)))
+
+    def scale_for(self, scene: SceneLog) -> float:
+        """Training-image scale for ``scene``'s cameras."""
+        if self.image_scale is not None:
+            return float(self.image_scale)
+        widest = max((c.width for c in scene.rig.cameras), default=self.train_width_px)
+        return min(1.0, self.train_width_px / widest)
+
+    @staticmethod
+    def preset(name: str) -> ReconConfig:
+        """``fast`` or ``default`` (the convert pipeline's ``--recon`` presets)."""
+        presets = {"fast": ReconConfig.fast, "default": ReconConfig.default}
+        if name not in presets:
+            raise ValueError(f"unknown reconstruction preset {name!r}; known: {sorted(presets)}")
+        return presets[name]()
+
+    def with_iterations(self, n: int) -> ReconConfig:
+        return replace(self, train=replace(self.train, iterations=int(n)))
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def split_views(views: list[SourceView], holdout_every: int) -> tuple[list[SourceView], list[SourceView]]:
+    """(train, held-out): every ``holdout_every``-th image of each camera is held out (0: none)."""
+    if holdout_every <= 0:
+        return views, []
+    train, held = [], []
+    per_channel: dict[str, int] = {}
+    for v in views:
+        k = per_channel.get(v.channel, 0)
+        per_channel[v.channel] = k + 1
+        (held if k % holdout_every == holdout_every // 2 else train).append(v)
+    return train, held
+
+
+def reconstruct(scene: SceneLog, config: ReconConfig | None = None, *, progress: bool = True,
+                checkpoint_dir: str | Path | None = None, resume: bool = False) -> SplatScene:
+    """Reconstruct ``scene`` as Gaussians (background + moving objects + sky), deterministic by seed.
+
+    With ``checkpoint_dir`` the trainer saves there (every ``train.checkpoint_every`` steps and
+    at the end); ``resume`` continues from the checkpoint found there.
+    """
+    cfg = config or ReconConfig()
+    torch.set_num_threads(cfg.threads)
+    torch.manual_seed(cfg.seed)
+    t0 = time.perf_counter()
+    channels = list(cfg.channels) if cfg.channels else None
+    views = source_views(scene, cfg.scale_for(scene), frame_stride=cfg.frame_stride, channels=channels)
+    if not views:
+        raise ValueError(f"log {scene.log_id}: no camera images to reconstruct from")
+    train_views, held = split_views(views, cfg.holdout_every)
+    init = initial_scene(scene, train_views, cfg.init, sh_degree=cfg.sh_degree, seed=cfg.seed,
+                         progress=progress)
+    t_init = time.perf_counter() - t0
+    trainer = Trainer(init.scene, scene, train_views, init.sky_masks,
+                      replace(cfg.train, seed=cfg.seed, threads=cfg.threads))
+    ckpt = Path(checkpoint_dir) if checkpoint_dir is not None else None
+    if ckpt is not None:
+        ckpt.mkdir(parents=True, exist_ok=True)
+        if resume and (ckpt / CHECKPOINT_FILE).is_file():
+            trainer.load(ckpt / CHECKPOINT_FILE)
+            log.info("resumed %s at step %d", scene.log_id, trainer.step)
+    report = trainer.run(progress=progress, checkpoint_dir=ckpt)
+    splat = trainer.splat
+    splat.info.update({
+        "log_id": scene.log_id, "source": scene.source, "init_stats": init.stats, "init_seconds": t_init,
+        "train": {k: v for k, v in report.to_dict().items() if k != "losses"},
+        "source_views": [view_record(v) for v in train_views],
+        "heldout_views": [view_record(v) for v in held],
+        "config": cfg.to_dict(),
+    })
+    return splat
+
+
+def view_record(v: SourceView) -> dict:
+    """A source camera image as plain data (enough to rebuild its pose and intrinsics)."""
+    return {"channel": v.channel, "timestamp_ns": int(v.timestamp_ns), "path": str(v.path),
+            "width": v.cam.width, "height": v.cam.height, "K": v.cam.K.tolist(),
+            "city_T_cam": np.asarray(v.city_T_cam).tolist()}
+
+
+def views_from_records(records: list[dict]) -> list[SourceView]:
+    """Inverse of :func:`view_record` (no ego mask: coverage only needs poses and intrinsics)."""
+    from nuav2.rig import CameraSpec
+
+    out = []
+    for i, r in enumerate(records):
+        K = np.asarray(r["K"], np.float64)
+        cam = CameraSpec(r["channel"], int(r["width"]), int(r["height"]), K, np.eye(4))
+        out.append(SourceView(i, r["channel"], int(r["timestamp_ns"]), Path(r["path"]), cam,
+                              np.asarray(r["city_T_cam"], np.float64),
+                              np.ones((cam.height, cam.width), bool)))
+    return out
+
+
+def coverage_for(splat: SplatScene, config: QualityConfig | None = None, *, with_depth: bool = True,
+                 progress: bool = False) -> SourceCoverage:
+    """The quality gate's model of what the source cameras saw (from ``splat.info``)."""
+    records = splat.info.get("source_views")
+    if not records:
+        raise ValueError("this reconstruction records no source views; cannot judge coverage")
+    return SourceCoverage.from_views(splat, views_from_records(records), config or QualityConfig(),
+                                     with_depth=with_depth, progress=progress)
+
+
+def render_provider(splat: SplatScene, *, min_confidence: float = 0.0, quality: bool = True,
+                    quality_config: QualityConfig | None = None, at_sweeps: bool = False,
+                    progress: bool = False) -> SplatImageSource:
+    """A writer ``ImageSource`` (render mode) over ``splat``; its ``renderer`` is the plain RenderFn
+    and keeps per-image quality records for :func:`~nuav2.splat.render_target.write_quality_sidecar`."""
+    if min_confidence > 0 and not quality:
+        raise ValueError("min_confidence needs the quality gate (quality=True)")
+    qcfg = quality_config or QualityConfig()
+    coverage = coverage_for(splat, qcfg, progress=progress) if quality else None
+    return SplatImageSource(SplatRenderer(splat, coverage, qcfg), min_confidence=min_confidence,
+                            at_sweeps=at_sweeps)
+
+
+def render_image_source(scene: SceneLog, out_rig=None, *, preset: str = "default",
+                        config: ReconConfig | None = None, min_confidence: float = 0.0,
+                        quality: bool = True, progress: bool = False,
+                        checkpoint_dir: str | Path | None = None) -> SplatImageSource:
+    """Render mode's writer ``ImageSource`` for one log: reconstruct it (``config`` or ``preset``),
+    then render each output camera at each sample. ``out_rig`` is accepted for symmetry with the
+    warp source; the writer passes the output rig to ``shots``/``store`` itself."""
+    splat = reconstruct(scene, config or ReconConfig.preset(preset), progress=progress,
+                        checkpoint_dir=checkpoint_dir, resume=checkpoint_dir is not None)
+    return render_provider(splat, min_confidence=min_confidence, quality=quality, progress=progress)

@@ -1,0 +1,64 @@
+"""gsplat (CUDA) backend with the same inputs and outputs as the CPU rasterizer.
+
+gsplat is imported lazily: it is optional, and ``import gsplat`` alone JIT-compiles nothing.
+Zero quaternions become the identity (gsplat's own normalisation would give NaN), log-scales
+are clamped like the CPU path, and the background is composited here so both backends agree.
+"""
+
+from __future__ import annotations
+
+import functools
+import importlib.util
+
+import torch
+
+from nuav2.splat._inputs import Cameras, background_rows
+from nuav2.splat.constants import (
+    EPS2D,
+    LOG_SCALE_MAX,
+    LOG_SCALE_MIN,
+    QUAT_EPS,
+)
+
+
+@functools.lru_cache(maxsize=1)
+def gsplat_available() -> tuple[bool, str]:
+    """(True, "") when CUDA and the gsplat package are usable, else (False, why)."""
+    if not torch.cuda.is_available():
+        return False, "no CUDA device (torch.cuda.is_available() is False)"
+    if importlib.util.find_spec("gsplat") is None:
+        return False, "the gsplat package is not installed"
+    return True, ""
+
+
+def rasterize_gsplat(means, quats, log_scales, opacity_logits, colors, cams: Cameras, width: int,
+                     height: int, near: float, far: float, background, sh_degree: int | None,
+                     radius_clip: float):
+    """Render through ``gsplat.rasterization`` (classic mode, RGB+ED) and repackage the outputs."""
+    import gsplat
+
+    from nuav2.splat.rasterize import RasterOutput, radii_to_int
+
+    device, dtype = means.device, means.dtype
+    norm = quats.norm(dim=-1, keepdim=True)
+    identity = torch.tensor([1.0, 0.0, 0.0, 0.0], dtype=dtype, device=device)
+    unit_quats = torch.where(norm >= QUAT_EPS, quats / norm.clamp_min(QUAT_EPS), identity)
+    scales = torch.exp(log_scales.clamp(LOG_SCALE_MIN, LOG_SCALE_MAX))
+    viewmats = torch.as_tensor(cams.cam_T_world, dtype=dtype, device=device)
+    Ks = torch.as_tensor(cams.K, dtype=dtype, device=device)
+    renders, alphas, meta = gsplat.rasterization(
+        means, unit_quats, scales, torch.sigmoid(opacity_logits), colors, viewmats, Ks, width, height,
+        near_plane=near, far_plane=far, radius_clip=radius_clip, eps2d=EPS2D, sh_degree=sh_degree,
+        packed=False, render_mode="RGB+ED", absgrad=True, rasterize_mode="classic")
+    alpha = alphas[..., 0]
+    bg = background_rows(background, len(cams), dtype, device)
+    rgb = renders[..., :3] + (1.0 - alpha)[..., None] * bg[:, None, None, :]
+    depth = renders[..., 3]
+    radii = meta["radii"]
+    if radii.ndim == 2:                       # gsplat < 1.5 gives one radius per Gaussian
+        radii = radii[..., None].expand(*radii.shape, 2)
+    out_meta = dict(means2d=meta["means2d"], radii=radii_to_int(radii.float()), visible=(radii > 0).any(-1),
+                    depths=meta["depths"], conics=meta["conics"], backend="gsplat")
+    if not cams.batched:
+        return RasterOutput(rgb[0], alpha[0], depth[0], out_meta)
+    return RasterOutput(rgb, alpha, depth, out_meta)

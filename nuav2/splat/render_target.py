@@ -1,0 +1,197 @@
+"""Rendering a reconstruction in a target rig, and the camera-image provider for the nuScenes writer.
+
+Frame alignment is the paper's eq. 1-2: the target vehicle rides the source vehicle's pose,
+``city_T_egoT = city_T_egoS(t) @ egoS_T_egoT`` (the two vehicle frames differ in origin height
+only), and each target camera sits at ``city_T_camT = city_T_egoT @ egoT_T_camT``. The writer
+(nuav2/nuscenes_db/images.py) computes exactly these poses and calls a ``RenderFn``
+``(channel, camera, city_T_cam, timestamp_ns) -> uint8 (H, W, 3)``; :class:`SplatRenderer` is
+one, and records each image's quality (:mod:`nuav2.splat.quality`) as it goes.
+:class:`SplatImageSource` wraps it as a writer ``ImageSource`` that can leave out the sample
+times where any camera's confidence is below ``min_confidence``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from nuav2.atomic import atomic_write_json
+from nuav2.geometry import F64, egoS_T_egoT_from_heights
+from nuav2.rig import CameraSpec, Rig
+from nuav2.scene import SceneLog
+from nuav2.splat.quality import ImageQuality, QualityConfig, SourceCoverage, image_quality
+from nuav2.splat.scene_model import SplatScene
+
+QUALITY_DIR = "render_quality"
+QUALITY_FILE = "nuav2_render_quality.json"
+
+
+def target_city_T_cams(scene: SceneLog, target_rig: Rig, timestamp_ns: int) -> dict[str, F64]:
+    """Each target camera's city pose when the target vehicle rides the source ego at ``timestamp_ns``."""
+    egoS_T_egoT = egoS_T_egoT_from_heights(scene.rig.origin_height_m, target_rig.origin_height_m)
+    city_T_egoT = scene.city_T_ego_at(int(timestamp_ns)) @ egoS_T_egoT
+    return {cam.channel: city_T_egoT @ cam.ego_T_cam for cam in target_rig.cameras}
+
+
+def to_uint8(rgb: torch.Tensor) -> np.ndarray:
+    """[0,1] float image -> uint8, rounded; NaN (never expected) becomes 0."""
+    arr = torch.nan_to_num(rgb.detach(), nan=0.0).clamp(0, 1).numpy()
+    return (arr * 255.0 + 0.5).astype(np.uint8)
+
+
+def sample_data_key(channel: str, timestamp_ns: int) -> str:
+    """Record key; the writer derives sample_data tokens from the same ``channel@timestamp_ns``."""
+    return f"{channel}@{int(timestamp_ns)}"
+
+
+@dataclass
+class SplatRenderer:
+    """A writer ``RenderFn`` over a reconstruction. With a ``source_coverage`` model it scores
+    every image it renders: ``coverage[channel][timestamp_ns]`` is the confidence (the same
+    shape the warp renderer exposes, read by the convert pipeline's quality table) and
+    ``records`` keeps the full :class:`ImageQuality` by ``channel@timestamp_ns``."""
+
+    splat: SplatScene
+    source_coverage: SourceCoverage | None = None
+    quality_cfg: QualityConfig = field(default_factory=QualityConfig)
+    coverage: dict[str, dict[int, float]] = field(default_factory=dict)
+    records: dict[str, dict] = field(default_factory=dict)
+
+    def render(self, camera: CameraSpec, city_T_cam: F64, timestamp_ns: int):
+        with torch.no_grad():
+            return self.splat.render(camera, np.asarray(city_T_cam, np.float64), int(timestamp_ns))
+
+    def quality(self, camera: CameraSpec, city_T_cam: F64, out) -> ImageQuality | None:
+        if self.source_coverage is None:
+            return None
+        scene_T_cam = self.splat.scene_T_city @ np.asarray(city_T_cam, np.float64)
+        return image_quality(out.depth.numpy(), out.alpha.numpy(), camera, scene_T_cam, self.source_coverage,
+                             self.quality_cfg)
+
+    def __call__(self, channel: str, camera: CameraSpec, city_T_cam: F64, timestamp_ns: int) -> np.ndarray:
+        out = self.render(camera, city_T_cam, timestamp_ns)
+        q = self.quality(camera, city_T_cam, out)
+        if q is not None:
+            self.coverage.setdefault(channel, {})[int(timestamp_ns)] = q.confidence
+            self.records[sample_data_key(channel, timestamp_ns)] = {
+                "channel": channel, "timestamp_ns": int(timestamp_ns), **q.to_dict()}
+        return to_uint8(out.rgb)
+
+    def confidence(self, camera: CameraSpec, city_T_cam: F64, timestamp_ns: int,
+                   scale: float = 0.25) -> float:
+        """Cheap confidence estimate from a low-resolution render (1.0 without a coverage model)."""
+        if self.source_coverage is None:
+            return 1.0
+        small = camera.scaled(scale)
+        out = self.render(small, city_T_cam, timestamp_ns)
+        q = self.quality(small, city_T_cam, out)
+        return 1.0 if q is None else q.confidence
+
+
+def scene_fingerprint(splat: SplatScene) -> str:
+    """Short hash of the reconstruction's parameters (a changed scene re-renders its shards)."""
+    h = hashlib.sha256()
+    for g in [splat.background] + [o.gaussians for o in splat.objects]:
+        for t in g.tensors().values():
+            h.update(t.detach().contiguous().numpy().tobytes())
+    h.update(splat.sky.texture.detach().numpy().tobytes())
+    return h.hexdigest()[:16]
+
+
+@dataclass
+class SplatImageSource:
+    """Writer ``ImageSource`` rendering every output camera at each sample time from a reconstruction.
+
+    With ``min_confidence`` > 0, ``shots`` first estimates every camera's confidence at each
+    candidate time (low-resolution render) and leaves out times where any camera falls below
+    it, so those samples never enter the database; ``dropped`` lists them.
+    """
+
+    render: SplatRenderer
+    min_confidence: float = 0.0
+    at_sweeps: bool = False
+    jpeg_quality: int = 95
+    estimate_scale: float = 0.25
+    dropped: list[dict] = field(default_factory=list)
+    _cache: dict = field(default_factory=dict, repr=False)  # (channel, t, w, h) -> estimated confidence
+    _rendered: object = field(default=None, repr=False)
+
+    @property
+    def renderer(self) -> SplatRenderer:
+        return self.render
+
+    def _images(self):
+        from nuav2.nuscenes_db.images import RenderedImages
+
+        if self._rendered is None:
+            name = f"splat-{scene_fingerprint(self.render.splat)}"
+            self._rendered = RenderedImages(self.render, name=name, at_sweeps=self.at_sweeps,
+                                            jpeg_quality=self.jpeg_quality)
+        return self._rendered
+
+    def shots(self, scene: SceneLog, out_rig: Rig, sample_ns: np.ndarray) -> dict:
+        shots = self._images().shots(scene, out_rig, sample_ns)
+        if self.min_confidence <= 0:
+            return shots
+        times = sorted({s.timestamp_ns for lst in shots.values() for s in lst})
+        bad = set()
+        for t in times:
+            poses = target_city_T_cams(scene, out_rig, t)
+            for cam in out_rig.cameras:
+                key = (cam.channel, t, cam.width, cam.height)
+                if key not in self._cache:
+                    self._cache[key] = self.render.confidence(cam, poses[cam.channel], t,
+                                                              self.estimate_scale)
+                if self._cache[key] < self.min_confidence:
+                    bad.add(t)
+                    self.dropped.append({"channel": cam.channel, "timestamp_ns": int(t),
+                                         "confidence": float(self._cache[key])})
+        return {ch: [s for s in lst if s.timestamp_ns not in bad] for ch, lst in shots.items()}
+
+    def extension(self, shot) -> str:
+        return ".jpg"
+
+    def store(self, shot, camera: CameraSpec, city_T_cam: F64, dst: Path) -> None:
+        self._images().store(shot, camera, city_T_cam, dst)
+
+    def fingerprint(self) -> str:
+        return f"{self._images().fingerprint()}:minconf={self.min_confidence}"
+
+
+def write_quality_sidecar(dataroot: str | Path, version: str, log_id: str, renderer: SplatRenderer,
+                          dropped: list[dict] | None = None, min_confidence: float = 0.0) -> Path:
+    """Write one log's image qualities to ``<dataroot>/<version>/render_quality/<log_id>.json``."""
+    from nuav2.nuscenes_db.tokens import make_token
+
+    images = {}
+    for key, rec in sorted(renderer.records.items()):
+        images[key] = {**rec, "sample_data_token": make_token(log_id, "sample_data", key)}
+    path = Path(dataroot) / version / QUALITY_DIR / f"{log_id}.json"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_json(path, {"log_id": log_id, "min_confidence": min_confidence, "images": images,
+                             "dropped": list(dropped or [])}, indent=1)
+    return path
+
+
+def merge_quality_sidecars(dataroot: str | Path, version: str) -> Path:
+    """Combine per-log sidecars into ``<version>/nuav2_render_quality.json`` keyed by sample_data token."""
+    root = Path(dataroot) / version
+    merged: dict = {"by_sample_data_token": {}, "dropped": {}}
+    for p in sorted((root / QUALITY_DIR).glob("*.json")):
+        try:
+            rec = json.loads(p.read_text())
+        except json.JSONDecodeError as e:
+            raise ValueError(f"{p}: not valid JSON ({e})") from e
+        for img in rec.get("images", {}).values():
+            merged["by_sample_data_token"][img["sample_data_token"]] = {
+                k: img[k] for k in ("channel", "timestamp_ns", "confidence", "solid_fraction", "alpha_mean")}
+        if rec.get("dropped"):
+            merged["dropped"][rec["log_id"]] = rec["dropped"]
+    out = root / QUALITY_FILE
+    atomic_write_json(out, merged, indent=1)
+    return out

@@ -1,0 +1,418 @@
+"""The reconstructed scene (Street Gaussians style): static background, moving objects, sky.
+
+- :class:`GaussianSet` holds the raw parameters one rasterizer call consumes (means, wxyz
+  quaternions, log-scales, opacity logits, SH colour coefficients).
+- :class:`TrackPoses` / :class:`ObjectModel`: one Gaussian set per *moving* track, living in
+  its box frame and placed at any time by the track's interpolated ``scene_T_box``; outside
+  its annotated span the object is absent.
+- :class:`SkyModel`: a lat-long texture looked up by view direction with ``grid_sample`` (CPU
+  friendly), composited where the Gaussians leave the pixel transparent.
+- :class:`SplatScene` renders all of them in one rasterizer call, in a *scene-local* float32
+  frame: ``city_T_scene`` is a float64 translation to the first ego pose, so float32 never
+  sees city-scale coordinates.
+
+Camera poses handed to :meth:`SplatScene.render` are in the city frame (float64, OpenCV
+camera axes: x right, y down, z forward), with the rig convention that pixel (u, v) has its
+centre at (u, v); the rasterizer's pixel centres sit at +0.5, so K is shifted on the way in.
+"""
+
+from __future__ import annotations
+
+import io
+import math
+from dataclasses import dataclass, field
+from functools import lru_cache
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from nuav2.atomic import atomic_write_bytes
+from nuav2.geometry import F64, T_inverse, interpolate_poses, rot_to_quat, translation_T
+from nuav2.rig import CameraSpec
+
+SH_C0 = 0.28209479177387814
+PARAM_NAMES = ("means", "quats", "log_scales", "opacity_logits", "sh")
+SCENE_FORMAT = "nuav2-splat-scene/1"
+SKY_ELEV_MIN = -math.radians(20.0)  # the sky texture spans this elevation up to the zenith
+
+
+def rgb_to_sh_dc(rgb01: torch.Tensor) -> torch.Tensor:
+    """SH DC coefficient whose colour (C0 * c + 0.5) equals ``rgb01``."""
+    return (rgb01 - 0.5) / SH_C0
+
+
+def inverse_sigmoid(p: torch.Tensor | float) -> torch.Tensor:
+    p = torch.as_tensor(p, dtype=torch.float32).clamp(1e-6, 1 - 1e-6)
+    return torch.log(p / (1 - p))
+
+
+def quat_mul_torch(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """Hamilton product a * b of (..., 4) wxyz quaternions (rotation b first, then a)."""
+    aw, ax, ay, az = a.unbind(-1)
+    bw, bx, by, bz = b.unbind(-1)
+    return torch.stack([aw * bw - ax * bx - ay * by - az * bz,
+                        aw * bx + ax * bw + ay * bz - az * by,
+                        aw * by - ax * bz + ay * bw + az * bx,
+                        aw * bz + ax * by - ay * bx + az * bw], -1)
+
+
+@dataclass
+class GaussianSet:
+    """Raw Gaussian parameters (leaf tensors the optimiser updates), all float32 on one device.
+
+    means (N,3) metres in the set's own frame; quats (N,4) wxyz; log_scales (N,3);
+    opacity_logits (N,); sh (N,K,3) with K = (degree+1)^2.
+    """
+
+    means: torch.Tensor
+    quats: torch.Tensor
+    log_scales: torch.Tensor
+    opacity_logits: torch.Tensor
+    sh: torch.Tensor
+
+    def __post_init__(self) -> None:
+        n = self.means.shape[0]
+        shapes = {"means": (n, 3), "quats": (n, 4), "log_scales": (n, 3), "opacity_logits": (n,)}
+        for name, shape in shapes.items():
+            if tuple(getattr(self, name).shape) != shape:
+                got = tuple(getattr(self, name).shape)
+                raise ValueError(f"GaussianSet.{name} must have shape {shape}, got {got}")
+        if self.sh.ndim != 3 or self.sh.shape[0] != n or self.sh.shape[2] != 3:
+            raise ValueError(f"GaussianSet.sh must be (N,K,3) with N={n}, got {tuple(self.sh.shape)}")
+
+    def __len__(self) -> int:
+        return int(self.means.shape[0])
+
+    @staticmethod
+    def create(means: np.ndarray | torch.Tensor, rgb01: np.ndarray | torch.Tensor,
+               scales: np.ndarray | torch.Tensor, *, opacity: float = 0.1, sh_degree: int = 1,
+               quats: np.ndarray | torch.Tensor | None = None) -> GaussianSet:
+        """New set from positions, colours in [0,1] and per-axis scales (N,3) or (N,) metres."""
+        means_t = torch.as_tensor(np.asarray(means, np.float32)).reshape(-1, 3).clone()
+        n = len(means_t)
+        rgb = torch.as_tensor(np.asarray(rgb01, np.float32)).reshape(n, 3).clamp(0.0, 1.0)
+        sc = torch.as_tensor(np.asarray(scales, np.float32))
+        sc = (sc.reshape(n, 1).expand(n, 3) if sc.ndim == 1 else sc.reshape(n, 3)).clamp_min(1e-4)
+        if quats is None:
+            q = torch.zeros(n, 4)
+            q[:, 0] = 1.0
+        else:
+            q = torch.as_tensor(np.asarray(quats, np.float32)).reshape(n, 4).clone()
+        sh = torch.zeros(n, (sh_degree + 1) ** 2, 3)
+        sh[:, 0] = rgb_to_sh_dc(rgb)
+        return GaussianSet(means_t, q, torch.log(sc).contiguous(),
+                           torch.full((n,), float(inverse_sigmoid(opacity))), sh)
+
+    @staticmethod
+    def empty(sh_degree: int = 1) -> GaussianSet:
+        return GaussianSet.create(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)), sh_degree=sh_degree)
+
+    @property
+    def sh_degree(self) -> int:
+        return math.isqrt(self.sh.shape[1]) - 1
+
+    def tensors(self) -> dict[str, torch.Tensor]:
+        return {name: getattr(self, name) for name in PARAM_NAMES}
+
+    def requires_grad_(self, flag: bool = True) -> GaussianSet:
+        for t in self.tensors().values():
+            t.requires_grad_(flag)
+        return self
+
+    def replace(self, **tensors: torch.Tensor) -> GaussianSet:
+        d = self.tensors()
+        d.update(tensors)
+        return GaussianSet(**d)
+
+    def select(self, keep: torch.Tensor) -> GaussianSet:
+        """Detached subset (bool mask or index tensor)."""
+        return GaussianSet(**{k: v.detach()[keep].clone() for k, v in self.tensors().items()})
+
+    def concat(self, other: GaussianSet) -> GaussianSet:
+        return GaussianSet(**{k: torch.cat([v.detach(), getattr(other, k).detach()])
+                              for k, v in self.tensors().items()})
+
+    def opacities(self) -> torch.Tensor:
+        return torch.sigmoid(self.opacity_logits.detach())
+
+    def all_finite(self) -> bool:
+        return all(bool(torch.isfinite(v).all()) for v in self.tensors().values())
+
+    def state(self) -> dict[str, torch.Tensor]:
+        return {k: v.detach().clone() for k, v in self.tensors().items()}
+
+    @staticmethod
+    def from_state(state: dict[str, torch.Tensor]) -> GaussianSet:
+        missing = [k for k in PARAM_NAMES if k not in state]
+        if missing:
+            raise ValueError(f"Gaussian state lacks {missing}")
+        return GaussianSet(**{k: state[k].detach().clone().float() for k in PARAM_NAMES})
+
+
+@dataclass
+class TrackPoses:
+    """A track's box poses in the scene frame at its annotated times (float64)."""
+
+    track_id: str
+    category: str
+    size_lwh: F64  # (3,) median box size
+    timestamps_ns: np.ndarray  # (T,) int64, strictly increasing
+    scene_T_box: F64  # (T, 4, 4)
+    # The object is present from first - margin to last + margin (half a sweep period by default).
+    presence_margin_ns: int = 50_000_000
+
+    def present(self, timestamp_ns: int) -> bool:
+        t = int(timestamp_ns)
+        return int(self.timestamps_ns[0]) - self.presence_margin_ns <= t <= int(self.timestamps_ns[-1]) + \
+            self.presence_margin_ns
+
+    def scene_T_box_at(self, timestamp_ns: int) -> F64:
+        """Interpolated box pose (slerp + lerp); the ends hold within the presence margin."""
+        return interpolate_poses(self.timestamps_ns, self.scene_T_box, int(timestamp_ns),
+                                 self.presence_margin_ns)[0]
+
+    def state(self) -> dict:
+        return {"track_id": self.track_id, "category": self.category, "size_lwh": self.size_lwh.tolist(),
+                "timestamps_ns": self.timestamps_ns.tolist(), "scene_T_box": self.scene_T_box.tolist(),
+                "presence_margin_ns": self.presence_margin_ns}
+
+    @staticmethod
+    def from_state(d: dict) -> TrackPoses:
+        return TrackPoses(d["track_id"], d["category"], np.asarray(d["size_lwh"], np.float64),
+                          np.asarray(d["timestamps_ns"], np.int64), np.asarray(d["scene_T_box"], np.float64),
+                          int(d["presence_margin_ns"]))
+
+
+@dataclass
+class ObjectModel:
+    """A moving track's Gaussians in its box frame (x along length, z up, origin at the box centre)."""
+
+    track: TrackPoses
+    gaussians: GaussianSet
+
+
+class SkyModel(torch.nn.Module):
+    """Sky colour by view direction: a (3, H, W) lat-long texture of logits, sampled bilinearly.
+
+    Columns span azimuth -pi..pi (wrapping), rows the elevation from the zenith (row 0) down
+    to ``SKY_ELEV_MIN``; directions lower than that clamp to the bottom row. Directions are in
+    the scene frame, which is a pure translation of the city frame, so the sky never turns with
+    the camera (the MapGS "sky rotating the wrong way" bug is a rotation applied twice).
+    """
+
+    def __init__(self, height: int = 32, width: int = 128,
+                 init_rgb: tuple[float, float, float] = (0.7, 0.8, 0.9)):
+        super().__init__()
+        logits = inverse_sigmoid(torch.tensor(init_rgb, dtype=torch.float32))
+        self.texture = torch.nn.Parameter(logits[:, None, None].expand(3, height, width).clone())
+
+    @staticmethod
+    def direction_to_grid(dirs: torch.Tensor, width: int) -> torch.Tensor:
+        """grid_sample coordinates in [-1, 1] of unit-or-not directions (..., 3) on a W+1 wrapped texture."""
+        d = dirs / dirs.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+        az = torch.atan2(d[..., 1], d[..., 0])  # -pi..pi
+        elev = torch.asin(d[..., 2].clamp(-1.0, 1.0)).clamp_min(SKY_ELEV_MIN)
+        # Texture columns 0..W-1 cover azimuth [-pi, pi) at column centres -pi + 2 pi j / W; the
+        # padded column W repeats column 0 (azimuth +pi). align_corners=True maps -1..1 to 0..W.
+        gx = (az + math.pi) / (2 * math.pi) * 2.0 - 1.0
+        gy = (math.pi / 2 - elev) / (math.pi / 2 - SKY_ELEV_MIN) * 2.0 - 1.0
+        return torch.stack([gx, gy], -1)
+
+    def forward(self, dirs: torch.Tensor) -> torch.Tensor:
+        """RGB in [0, 1] for directions (..., 3)."""
+        shape = dirs.shape[:-1]
+        tex = torch.cat([self.texture, self.texture[:, :, :1]], dim=2)  # wrap azimuth
+        grid = self.direction_to_grid(dirs.reshape(1, -1, 1, 3), self.texture.shape[2]).to(tex.dtype)
+        out = F.grid_sample(tex[None], grid, mode="bilinear", padding_mode="border", align_corners=True)
+        return torch.sigmoid(out[0, :, :, 0].T).reshape(*shape, 3)
+
+
+@lru_cache(maxsize=64)
+def _pixel_rays_cam(fx: float, fy: float, cx: float, cy: float, width: int, height: int) -> torch.Tensor:
+    """(H, W, 3) camera-frame rays through pixel centres (rig convention: centre of pixel u is u)."""
+    u = torch.arange(width, dtype=torch.float64)
+    v = torch.arange(height, dtype=torch.float64)
+    vv, uu = torch.meshgrid(v, u, indexing="ij")
+    return torch.stack([(uu - cx) / fx, (vv - cy) / fy, torch.ones_like(uu)], -1).float()
+
+
+def pixel_rays(cam: CameraSpec, scene_T_cam: F64) -> torch.Tensor:
+    """(H, W, 3) float32 ray directions in the scene frame (not normalised)."""
+    K = cam.K
+    rays = _pixel_rays_cam(float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]), cam.width,
+                           cam.height)
+    R = torch.as_tensor(np.asarray(scene_T_cam)[:3, :3], dtype=torch.float32)
+    return rays @ R.T
+
+
+def raster_K(K: F64) -> F64:
+    """Rig intrinsics (pixel u centred at u) -> rasterizer intrinsics (pixel j centred at j + 0.5)."""
+    Kr = np.array(K, dtype=np.float64, copy=True)
+    Kr[0, 2] += 0.5
+    Kr[1, 2] += 0.5
+    return Kr
+
+
+class SceneRender(NamedTuple):
+    """One camera's render: rgb (H,W,3) in [0,1] with sky, alpha (H,W), depth (H,W) z-depth of the
+    Gaussians (0 where alpha is 0), the rasterizer meta, which rows of the gathered Gaussians
+    came from which set (``"background"`` or a track id) and which of them were rasterized."""
+
+    rgb: torch.Tensor
+    alpha: torch.Tensor
+    depth: torch.Tensor
+    meta: dict
+    slices: dict[str, slice]
+    index: torch.Tensor  # rows of the gathered Gaussians that reached the rasterizer (meta's rows)
+
+
+def frustum_cull(g: dict[str, torch.Tensor], cam: CameraSpec, scene_T_cam: F64, near: float, far: float,
+                 margin: float = 0.3) -> torch.Tensor:
+    """Indices of Gaussians whose 3-sigma sphere may touch the view frustum (widened by ``margin``
+    of the half field of view): everything else costs projection time for nothing."""
+    with torch.no_grad():
+        means = g["means"].detach()
+        if len(means) == 0:
+            return torch.zeros(0, dtype=torch.long)
+        cam_T_scene = T_inverse(scene_T_cam)
+        R = torch.as_tensor(cam_T_scene[:3, :3], dtype=means.dtype)
+        t = torch.as_tensor(cam_T_scene[:3, 3], dtype=means.dtype)
+        p = means @ R.T + t
+        r = 3.0 * torch.exp(g["log_scales"].detach().clamp(max=10.0)).max(-1).values
+        K = cam.K
+        lim_x = max(K[0, 2] + 0.5, cam.width - 0.5 - K[0, 2]) / K[0, 0] * (1 + margin)
+        lim_y = max(K[1, 2] + 0.5, cam.height - 0.5 - K[1, 2]) / K[1, 1] * (1 + margin)
+        z = p[:, 2]
+        keep = (z + r > near) & (z - r < far)
+        keep &= p[:, 0].abs() - r * math.sqrt(1 + lim_x**2) < z.clamp_min(0) * lim_x
+        keep &= p[:, 1].abs() - r * math.sqrt(1 + lim_y**2) < z.clamp_min(0) * lim_y
+        return torch.nonzero(keep).flatten()
+
+
+@dataclass
+class SplatScene:
+    """Everything a reconstruction produced; render it from any camera at any time."""
+
+    city_T_scene: F64  # (4, 4) float64 translation to the first ego pose
+    background: GaussianSet
+    objects: list[ObjectModel]
+    sky: SkyModel
+    near: float = 0.1
+    far: float = 1000.0
+    radius_clip: float = 0.0
+    info: dict = field(default_factory=dict)
+
+    @property
+    def scene_T_city(self) -> F64:
+        return T_inverse(self.city_T_scene)
+
+    @property
+    def sh_degree(self) -> int:
+        return self.background.sh_degree
+
+    def num_gaussians(self) -> int:
+        return len(self.background) + sum(len(o.gaussians) for o in self.objects)
+
+    def gather(self, timestamp_ns: int,
+               objects: bool = True) -> tuple[dict[str, torch.Tensor], dict[str, slice]]:
+        """All Gaussians in the scene frame at ``timestamp_ns`` (objects moved along their tracks),
+        concatenated; autograd flows back to every set's parameters."""
+        parts = [self.background.tensors()]
+        slices = {"background": slice(0, len(self.background))}
+        start = len(self.background)
+        for obj in self.objects if objects else []:
+            if not obj.track.present(timestamp_ns) or len(obj.gaussians) == 0:
+                continue
+            T = obj.track.scene_T_box_at(timestamp_ns)
+            R = torch.as_tensor(T[:3, :3], dtype=torch.float32)
+            t = torch.as_tensor(T[:3, 3], dtype=torch.float32)
+            q_box = torch.as_tensor(rot_to_quat(T[:3, :3]), dtype=torch.float32)
+            g = obj.gaussians
+            parts.append({"means": g.means @ R.T + t,
+                          "quats": quat_mul_torch(q_box.expand_as(g.quats), g.quats),
+                          "log_scales": g.log_scales, "opacity_logits": g.opacity_logits, "sh": g.sh})
+            slices[obj.track.track_id] = slice(start, start + len(g))
+            start += len(g)
+        if len(parts) == 1:
+            return parts[0], slices
+        return {k: torch.cat([p[k] for p in parts]) for k in PARAM_NAMES}, slices
+
+    def render(self, cam: CameraSpec, city_T_cam: F64, timestamp_ns: int, *, sh_degree: int | None = None,
+               with_sky: bool = True, objects: bool = True) -> SceneRender:
+        """Render ``cam`` (at its own resolution) posed at ``city_T_cam`` with actors at ``timestamp_ns``."""
+        from nuav2.splat import rasterize
+
+        scene_T_cam = self.scene_T_city @ np.asarray(city_T_cam, np.float64)
+        g, slices = self.gather(timestamp_ns, objects)
+        deg = self.sh_degree if sh_degree is None else min(sh_degree, self.sh_degree)
+        index = frustum_cull(g, cam, scene_T_cam, self.near, self.far)
+        if len(index) == 0:
+            h, w = cam.height, cam.width
+            alpha = torch.zeros(h, w)
+            out_rgb, out_depth, meta = torch.zeros(h, w, 3), torch.zeros(h, w), {}
+        else:
+            sh = g["sh"][index, : (deg + 1) ** 2]
+            if deg == 0:  # view-independent: plain RGB skips the per-Gaussian view directions
+                colors, raster_deg = (SH_C0 * sh[:, 0] + 0.5).clamp_min(0.0), None
+            else:
+                colors, raster_deg = sh, deg
+            out = rasterize(g["means"][index], g["quats"][index], g["log_scales"][index],
+                            g["opacity_logits"][index], colors, scene_T_cam, raster_K(cam.K), cam.width,
+                            cam.height, near=self.near, far=self.far, sh_degree=raster_deg,
+                            radius_clip=self.radius_clip)
+            out_rgb, alpha, out_depth, meta = out.rgb, out.alpha, out.depth, out.meta
+        rgb = out_rgb
+        if with_sky:
+            sky = self.sky(pixel_rays(cam, scene_T_cam))
+            rgb = out_rgb + (1.0 - alpha)[..., None] * sky
+        return SceneRender(rgb, alpha, out_depth, meta, slices, index)
+
+    # ---- persistence ---------------------------------------------------------------------------
+
+    def state(self) -> dict:
+        return {"format": SCENE_FORMAT, "city_T_scene": self.city_T_scene.tolist(),
+                "background": self.background.state(),
+                "objects": [{"track": o.track.state(), "gaussians": o.gaussians.state()}
+                            for o in self.objects],
+                "sky": self.sky.texture.detach().clone(), "near": self.near, "far": self.far,
+                "radius_clip": self.radius_clip, "info": dict(self.info)}
+
+    @staticmethod
+    def from_state(state: dict, src: str = "<state>") -> SplatScene:
+        if not isinstance(state, dict) or state.get("format") != SCENE_FORMAT:
+            raise ValueError(f"{src}: not a nuav2 splat scene (format must be {SCENE_FORMAT!r})")
+        tex = state["sky"]
+        sky = SkyModel(tex.shape[1], tex.shape[2])
+        with torch.no_grad():
+            sky.texture.copy_(tex)
+        objects = [ObjectModel(TrackPoses.from_state(o["track"]), GaussianSet.from_state(o["gaussians"]))
+                   for o in state["objects"]]
+        return SplatScene(np.asarray(state["city_T_scene"], np.float64),
+                          GaussianSet.from_state(state["background"]), objects, sky, float(state["near"]),
+                          float(state["far"]), float(state["radius_clip"]), dict(state.get("info", {})))
+
+    def save(self, path: str | Path) -> None:
+        """Write atomically (torch format, tensors + plain metadata)."""
+        buf = io.BytesIO()
+        torch.save(self.state(), buf)
+        atomic_write_bytes(Path(path), buf.getvalue())
+
+    @staticmethod
+    def load(path: str | Path) -> SplatScene:
+        path = Path(path)
+        if not path.is_file():
+            raise FileNotFoundError(f"{path}: splat scene file not found")
+        try:
+            state = torch.load(path, map_location="cpu", weights_only=False)
+        except Exception as e:  # noqa: BLE001 - any unpickling failure means a bad file
+            raise ValueError(f"{path}: not a readable splat scene ({type(e).__name__}: {e})") from e
+        return SplatScene.from_state(state, str(path))
+
+
+def scene_frame_for(city_T_ego_first: F64) -> F64:
+    """``city_T_scene``: a pure translation to the first ego position (float64), so scene axes
+    are city axes (z up) and scene coordinates stay small."""
+    return translation_T(*np.asarray(city_T_ego_first, np.float64)[:3, 3])

@@ -1,0 +1,305 @@
+"""Numba kernels of the warp: ground ray casting, lidar disk splatting, per-source backward warp.
+
+One loop over rays / points / pixels each, float64 geometry, no temporaries: the numpy
+versions of these spent most of their time allocating (N, 3) arrays. The public wrappers in
+``depth_proxy`` and ``backward_warp`` check inputs and document the semantics.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+DIR_EPS = 1e-9
+MARCH_SAMPLES = 96
+MARCH_T0 = 1e-3
+BISECTIONS = 30
+
+
+@njit(cache=True, inline="always")
+def _ground_height(x, y, normal, offset, heights, rR, rt, rs, has_raster):
+    """Raster height at city (x, y) where known, else the plane's height."""
+    if has_raster:
+        px = rs * (rR[0, 0] * x + rR[0, 1] * y + rt[0])
+        py = rs * (rR[1, 0] * x + rR[1, 1] * y + rt[1])
+        if px >= 0.0 and py >= 0.0:
+            col = int(math.floor(px))
+            row = int(math.floor(py))
+            if row < heights.shape[0] and col < heights.shape[1]:
+                h = float(heights[row, col])
+                if math.isfinite(h):
+                    return h
+    return (offset - normal[0] * x - normal[1] * y) / normal[2]
+
+
+@njit(cache=True)
+def ground_intersect_kernel(origin, dirs, normal, offset, heights, rR, rt, rs, has_raster, iterations, t_max,
+                            tol, out):  # pragma: no cover - compiled
+    ox, oy, oz = origin[0], origin[1], origin[2]
+    for i in range(dirs.shape[0]):
+        dx, dy, dz = dirs[i, 0], dirs[i, 1], dirs[i, 2]
+        norm = math.sqrt(dx * dx + dy * dy + dz * dz)
+        nd = normal[0] * dx + normal[1] * dy + normal[2] * dz
+        t = math.inf
+        if nd < -DIR_EPS * norm:
+            t = (offset - (normal[0] * ox + normal[1] * oy + normal[2] * oz)) / nd
+            if t < 0.0:
+                t = math.inf
+        if not has_raster or iterations == 0:
+            out[i] = t
+            continue
+        if not dz < -DIR_EPS * norm:
+            out[i] = math.inf
+            continue
+        for _ in range(iterations):
+            if not math.isfinite(t):
+                break
+            h = _ground_height(ox + t * dx, oy + t * dy, normal, offset, heights, rR, rt, rs, has_raster)
+            t = (h - oz) / dz
+            if t < 0.0:
+                t = math.inf
+        if math.isfinite(t):
+            h = _ground_height(ox + t * dx, oy + t * dy, normal, offset, heights, rR, rt, rs, has_raster)
+            if abs(oz + t * dz - h) <= tol:
+                out[i] = t
+                continue
+        # March to the first sample below the ground, then bisect the crossing.
+        ratio = (t_max / MARCH_T0) ** (1.0 / (MARCH_SAMPLES - 1))
+        t_prev = MARCH_T0
+        h0 = _ground_height(ox + t_prev * dx, oy + t_prev * dy, normal, offset, heights, rR, rt, rs,
+                            has_raster)
+        t = math.inf
+        if oz + t_prev * dz >= h0:
+            tk = t_prev
+            for _ in range(1, MARCH_SAMPLES):
+                tk = tk * ratio
+                hk = _ground_height(ox + tk * dx, oy + tk * dy, normal, offset, heights, rR, rt, rs,
+                                    has_raster)
+                if oz + tk * dz < hk:
+                    lo, hi = t_prev, tk
+                    for _ in range(BISECTIONS):
+                        mid = 0.5 * (lo + hi)
+                        hm = _ground_height(ox + mid * dx, oy + mid * dy, normal, offset, heights, rR, rt, rs,
+                                            has_raster)
+                        if oz + mid * dz >= hm:
+                            lo = mid
+                        else:
+                            hi = mid
+                    t = 0.5 * (lo + hi)
+                    break
+                t_prev = tk
+        out[i] = t
+
+
+@njit(cache=True)
+def splat_points_kernel(points, radius_m, cam_T_city, K, near, far, min_px, max_px,
+                        depth):  # pragma: no cover - compiled
+    """Project city points and z-buffer them as disks of ``f * radius / z`` pixels (clipped)."""
+    h, w = depth.shape
+    fx, skew, cx, fy, cy = K[0, 0], K[0, 1], K[0, 2], K[1, 1], K[1, 2]
+    f = 0.5 * (fx + fy)
+    for i in range(points.shape[0]):
+        px, py, pz = points[i, 0], points[i, 1], points[i, 2]
+        x = cam_T_city[0, 0] * px + cam_T_city[0, 1] * py + cam_T_city[0, 2] * pz + cam_T_city[0, 3]
+        y = cam_T_city[1, 0] * px + cam_T_city[1, 1] * py + cam_T_city[1, 2] * pz + cam_T_city[1, 3]
+        z = cam_T_city[2, 0] * px + cam_T_city[2, 1] * py + cam_T_city[2, 2] * pz + cam_T_city[2, 3]
+        if not (z > near and z < far):
+            continue
+        u = fx * x / z + skew * y / z + cx
+        v = fy * y / z + cy
+        r = min(max(f * radius_m[i] / z, min_px), max_px)
+        if u + r < 0.0 or v + r < 0.0 or u - r > w - 1 or v - r > h - 1:
+            continue
+        r2 = r * r
+        for yy in range(max(int(math.floor(v - r)), 0), min(int(math.ceil(v + r)), h - 1) + 1):
+            ddy = yy - v
+            for xx in range(max(int(math.floor(u - r)), 0), min(int(math.ceil(u + r)), w - 1) + 1):
+                ddx = xx - u
+                if ddx * ddx + ddy * ddy <= r2 and z < depth[yy, xx]:
+                    depth[yy, xx] = z
+
+
+@njit(cache=True, inline="always")
+def _corners(h, w, u, v):
+    """Bilinear taps at (u, v) (pixel centres at integers), edge-clamped: x0, x1, y0, y1, ax, ay."""
+    x = min(max(u, 0.0), w - 1.0)
+    y = min(max(v, 0.0), h - 1.0)
+    x0 = int(math.floor(x))
+    y0 = int(math.floor(y))
+    return x0, min(x0 + 1, w - 1), y0, min(y0 + 1, h - 1), x - x0, y - y0
+
+
+@njit(cache=True, inline="always")
+def _bilinear2(img, u, v):
+    x0, x1, y0, y1, ax, ay = _corners(img.shape[0], img.shape[1], u, v)
+    a = float(img[y0, x0]) * (1 - ax) + float(img[y0, x1]) * ax
+    b = float(img[y1, x0]) * (1 - ax) + float(img[y1, x1]) * ax
+    return a * (1 - ay) + b * ay
+
+
+@njit(cache=True, inline="always")
+def _bilinear3(img, u, v, c):
+    x0, x1, y0, y1, ax, ay = _corners(img.shape[0], img.shape[1], u, v)
+    a = float(img[y0, x0, c]) * (1 - ax) + float(img[y0, x1, c]) * ax
+    b = float(img[y1, x0, c]) * (1 - ax) + float(img[y1, x1, c]) * ax
+    return a * (1 - ay) + b * ay
+
+
+@njit(cache=True)
+def warp_source_kernel(depth_T, K_T, city_T_camT, box_index, motion, image, image_scale, K_S, cam_T_city_S,
+                       centre_S, inv_depth, K_vis, valid, has_valid, time_w, near, rel_tol, inf_inv,
+                       angle_sigma, border_px, min_w, acc, wsum, count):  # pragma: no cover - compiled
+    """Add one source's weighted colours into ``acc`` / ``wsum`` / ``count`` (flat per target pixel)."""
+    hT, wT = depth_T.shape
+    hS, wS = image.shape[0], image.shape[1]
+    hV, wV = inv_depth.shape
+    sx = wV / wS
+    sy = hV / hS
+    cT = city_T_camT[:3, 3]
+    for row in range(hT):
+        for col in range(wT):
+            i = row * wT + col
+            # Target ray (z-normalised in the camera) in the city frame.
+            ry = (row - K_T[1, 2]) / K_T[1, 1]
+            rx = (col - K_T[0, 2] - K_T[0, 1] * ry) / K_T[0, 0]
+            dx = city_T_camT[0, 0] * rx + city_T_camT[0, 1] * ry + city_T_camT[0, 2]
+            dy = city_T_camT[1, 0] * rx + city_T_camT[1, 1] * ry + city_T_camT[1, 2]
+            dz = city_T_camT[2, 0] * rx + city_T_camT[2, 1] * ry + city_T_camT[2, 2]
+            z_T = depth_T[row, col]
+            finite = math.isfinite(z_T)
+            if finite:
+                px = cT[0] + z_T * dx
+                py = cT[1] + z_T * dy
+                pz = cT[2] + z_T * dz
+                tx, ty, tz = px - cT[0], py - cT[1], pz - cT[2]
+                b = box_index[row, col]
+                if b >= 0:
+                    if b >= motion.shape[0] or not math.isfinite(motion[b, 0, 0]):
+                        continue
+                    qx = motion[b, 0, 0] * px + motion[b, 0, 1] * py + motion[b, 0, 2] * pz + motion[b, 0, 3]
+                    qy = motion[b, 1, 0] * px + motion[b, 1, 1] * py + motion[b, 1, 2] * pz + motion[b, 1, 3]
+                    qz = motion[b, 2, 0] * px + motion[b, 2, 1] * py + motion[b, 2, 2] * pz + motion[b, 2, 3]
+                    px, py, pz = qx, qy, qz
+                M = cam_T_city_S
+                x = M[0, 0] * px + M[0, 1] * py + M[0, 2] * pz + M[0, 3]
+                y = M[1, 0] * px + M[1, 1] * py + M[1, 2] * pz + M[1, 3]
+                z = M[2, 0] * px + M[2, 1] * py + M[2, 2] * pz + M[2, 3]
+                sx_, sy_, sz_ = px - centre_S[0], py - centre_S[1], pz - centre_S[2]
+            else:
+                x = cam_T_city_S[0, 0] * dx + cam_T_city_S[0, 1] * dy + cam_T_city_S[0, 2] * dz
+                y = cam_T_city_S[1, 0] * dx + cam_T_city_S[1, 1] * dy + cam_T_city_S[1, 2] * dz
+                z = cam_T_city_S[2, 0] * dx + cam_T_city_S[2, 1] * dy + cam_T_city_S[2, 2] * dz
+                tx, ty, tz = dx, dy, dz
+                sx_, sy_, sz_ = dx, dy, dz
+            if not z > near:
+                continue
+            u = K_S[0, 0] * x / z + K_S[0, 1] * y / z + K_S[0, 2]
+            v = K_S[1, 1] * y / z + K_S[1, 2]
+            if not (u >= -0.5 and u <= wS - 0.5 and v >= -0.5 and v <= hS - 0.5):
+                continue
+            inv_s = _bilinear2(inv_depth, (u + 0.5) * sx - 0.5, (v + 0.5) * sy - 0.5)
+            if finite:
+                if 1.0 / z < (1.0 - rel_tol) * inv_s:
+                    continue
+            elif inv_s > inf_inv:
+                continue
+            if has_valid:
+                vr = min(max(int(math.floor(v + 0.5)), 0), hS - 1)
+                vc = min(max(int(math.floor(u + 0.5)), 0), wS - 1)
+                if not valid[vr, vc]:
+                    continue
+            # Weights: ray angle, border distance, time offset (each floored at min_w).
+            nt = math.sqrt(tx * tx + ty * ty + tz * tz)
+            ns = math.sqrt(sx_ * sx_ + sy_ * sy_ + sz_ * sz_)
+            c = (tx * sx_ + ty * sy_ + tz * sz_) / max(nt * ns, 1e-12)
+            ang = math.acos(min(max(c, -1.0), 1.0))
+            w_ang = max(math.exp(-0.5 * (ang / angle_sigma) ** 2), min_w)
+            dist = min(min(u + 0.5, wS - 0.5 - u), min(v + 0.5, hS - 0.5 - v))
+            w_border = max(min(dist / border_px, 1.0), min_w)
+            wgt = w_ang * w_border * time_w
+            for ch in range(3):
+                acc[i, ch] += wgt * _bilinear3(image, u, v, ch) * image_scale
+            wsum[i] += wgt
+            count[i] += 1
+
+
+@njit(cache=True, inline="always")
+def _slab_t(ox, oy, oz, dx, dy, dz, hx, hy, hz, near):
+    """First t >= near where the ray enters the centred box of half sizes (hx, hy, hz); inf on a miss.
+
+    Axis-parallel components are handled explicitly (inside that slab: no constraint; outside:
+    miss), so there is no 0 * inf NaN; a ray starting inside hits at ``near``.
+    """
+    t_enter = -math.inf
+    t_exit = math.inf
+    for a in range(3):
+        if a == 0:
+            o, d, h = ox, dx, hx
+        elif a == 1:
+            o, d, h = oy, dy, hy
+        else:
+            o, d, h = oz, dz, hz
+        if abs(d) < DIR_EPS:
+            if abs(o) > h:
+                return math.inf
+            continue
+        t1 = (-h - o) / d
+        t2 = (h - o) / d
+        if t1 > t2:
+            t1, t2 = t2, t1
+        t_enter = max(t_enter, t1)
+        t_exit = min(t_exit, t2)
+    if t_enter <= t_exit and t_exit >= near:
+        return max(t_enter, near)
+    return math.inf
+
+
+@njit(cache=True)
+def ray_box_kernel(origin, dirs, half, near, out):  # pragma: no cover - compiled
+    for i in range(dirs.shape[0]):
+        out[i] = _slab_t(origin[0], origin[1], origin[2], dirs[i, 0], dirs[i, 1], dirs[i, 2],
+                         half[0], half[1], half[2], near)
+
+
+@njit(cache=True)
+def box_depth_kernel(K, box_T_cam, half, rects, near, max_depth, depth, index):  # pragma: no cover - compiled
+    """Nearest box face per pixel inside each box's rectangle (r0, r1, c0, c1 inclusive; r1 < r0: skip)."""
+    fx, skew, cx, fy, cy = K[0, 0], K[0, 1], K[0, 2], K[1, 1], K[1, 2]
+    for b in range(box_T_cam.shape[0]):
+        R = box_T_cam[b]
+        ox, oy, oz = R[0, 3], R[1, 3], R[2, 3]
+        for row in range(rects[b, 0], rects[b, 1] + 1):
+            ry = (row - cy) / fy
+            for col in range(rects[b, 2], rects[b, 3] + 1):
+                rx = (col - cx - skew * ry) / fx
+                dx = R[0, 0] * rx + R[0, 1] * ry + R[0, 2]
+                dy = R[1, 0] * rx + R[1, 1] * ry + R[1, 2]
+                dz = R[2, 0] * rx + R[2, 1] * ry + R[2, 2]
+                t = _slab_t(ox, oy, oz, dx, dy, dz, half[b, 0], half[b, 1], half[b, 2], near)
+                if t < depth[row, col] and t <= max_depth:
+                    depth[row, col] = t
+                    index[row, col] = b
+
+
+@njit(cache=True)
+def ground_depth_kernel(K, city_T_cam, normal, offset, heights, rR, rt, rs, has_raster, iterations, t_max,
+                        tol, near, max_depth, depth):  # pragma: no cover - compiled
+    """Camera z of the ground for every pixel (rays generated here; ``inf`` outside [near, max_depth])."""
+    h, w = depth.shape
+    fx, skew, cx, fy, cy = K[0, 0], K[0, 1], K[0, 2], K[1, 1], K[1, 2]
+    origin = city_T_cam[:3, 3].copy()
+    dirs = np.empty((w, 3))
+    out = np.empty(w)
+    for row in range(h):
+        ry = (row - cy) / fy
+        for col in range(w):
+            rx = (col - cx - skew * ry) / fx
+            for k in range(3):
+                dirs[col, k] = city_T_cam[k, 0] * rx + city_T_cam[k, 1] * ry + city_T_cam[k, 2]
+        ground_intersect_kernel(origin, dirs, normal, offset, heights, rR, rt, rs, has_raster, iterations,
+                                t_max, tol, out)
+        for col in range(w):
+            t = out[col]
+            depth[row, col] = t if (t >= near and t <= max_depth) else math.inf

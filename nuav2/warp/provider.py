@@ -1,0 +1,242 @@
+"""Warp mode's image provider: target-rig images from the log's own images, via depth proxies.
+
+:class:`WarpRenderer` is a :data:`nuav2.nuscenes_db.images.RenderFn`: the writer calls it with
+each target camera, its city pose and the time; it builds the target depth proxy from the log
+at that time, picks the source images near that time whose view can overlap the target's,
+renders each source's own proxy (cached, at a capped resolution) for the visibility test, and
+blends (:mod:`nuav2.warp.backward_warp`). Uncovered pixels are filled (inpainting by default)
+and their share is recorded per image in :attr:`WarpRenderer.coverage`.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from collections import OrderedDict
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from nuav2.atomic import atomic_write_json
+from nuav2.geometry import F64, T_inverse
+from nuav2.nuscenes_db.images import ImageSourceError, RenderedImages
+from nuav2.rig import CameraSpec
+from nuav2.scene import CameraFrame, SceneLog
+from nuav2.warp.backward_warp import FILL_MODES, BlendConfig, SourceView, fill_uncovered, warp_from_sources
+from nuav2.warp.depth_proxy import GroundSurface, ProxyConfig, ProxyGeometry, render_depth_proxy
+from nuav2.warp.lidar_cloud import CloudConfig, LidarCloud
+from nuav2.warp.tracks import DEFAULT_TOLERANCE_NS, BoxesAt, BoxTracks
+
+
+@dataclass(frozen=True)
+class WarpConfig:
+    """Everything that changes a warped image (hashed into the shard fingerprint)."""
+
+    proxy: ProxyConfig = field(default_factory=ProxyConfig)
+    blend: BlendConfig = field(default_factory=BlendConfig)
+    cloud: CloudConfig = field(default_factory=CloudConfig)
+    frames_per_channel: int = 1  # nearest images of each source camera used per target image
+    max_source_offset_ns: int = 60_000_000  # source images further from the target time are not used
+    overlap_margin_rad: float = 0.1  # a source is used if its view cone can overlap the target's
+    visibility_max_pixels: int = 200_000  # source depth proxies are rendered at most this large
+    use_ground_raster: bool = True
+    fill: str = "inpaint"
+    background: tuple[float, float, float] = (0.5, 0.5, 0.5)
+    cache_mb: int = 1024  # source views (image + proxy) kept for reuse across target cameras
+
+    def __post_init__(self) -> None:
+        if self.fill not in FILL_MODES:
+            raise ValueError(f"WarpConfig.fill must be one of {FILL_MODES}, got {self.fill!r}")
+        if self.frames_per_channel < 1 or self.max_source_offset_ns < 0 or self.visibility_max_pixels < 64:
+            raise ValueError("WarpConfig needs frames_per_channel >= 1, max_source_offset_ns >= 0, "
+                             "visibility_max_pixels >= 64")
+
+    def fingerprint(self) -> str:
+        d = asdict(self)
+        d.pop("cache_mb")
+        return hashlib.sha256(json.dumps(d, sort_keys=True, default=str).encode()).hexdigest()[:12]
+
+
+@dataclass(frozen=True)
+class WarpOutput:
+    rgb: np.ndarray  # float32 (H, W, 3), filled
+    coverage: np.ndarray  # bool (H, W): some source saw the pixel
+    n_sources: int  # source images used
+
+
+def half_diagonal_fov(camera: CameraSpec) -> float:
+    """Angle from the optical axis to the farthest image corner (a cone containing the view)."""
+    K = camera.K
+    xs = np.array([-0.5 - K[0, 2], camera.width - 0.5 - K[0, 2]]) / K[0, 0]
+    ys = np.array([-0.5 - K[1, 2], camera.height - 0.5 - K[1, 2]]) / K[1, 1]
+    return float(np.arctan(np.sqrt(np.max(xs ** 2) + np.max(ys ** 2))))
+
+
+def read_rgb(path: Path, camera: CameraSpec) -> np.ndarray:
+    """uint8 RGB image; raises ImageSourceError naming the file when unreadable or the wrong size."""
+    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if img is None:
+        raise ImageSourceError(f"{path}: not a readable image")
+    if img.shape[:2] != (camera.height, camera.width):
+        raise ImageSourceError(f"{path}: image is {img.shape[1]}x{img.shape[0]} but the calibration of "
+                               f"{camera.channel} says {camera.width}x{camera.height}")
+    return np.ascontiguousarray(img[:, :, ::-1])
+
+
+class WarpRenderer:
+    """Renders any target camera at any time of ``scene`` by warping its source images (see module doc)."""
+
+    def __init__(self, scene: SceneLog, config: WarpConfig | None = None) -> None:
+        self.scene = scene
+        self.config = config or WarpConfig()
+        self._poses: dict[int, F64] = {}
+        self._boxes: OrderedDict[int, BoxesAt] = OrderedDict()
+        self.tracks = BoxTracks.from_scene(scene)
+        self.cloud = LidarCloud(scene, self.tracks, self.config.cloud, self.ground_at)
+        self.frames: dict[str, list[CameraFrame]] = {}
+        self.frame_ns: dict[str, np.ndarray] = {}
+        for cam in scene.rig.cameras:
+            fr = sorted(scene.camera_frames.get(cam.channel, []), key=lambda f: f.timestamp_ns)
+            if fr:
+                self.frames[cam.channel] = fr
+                self.frame_ns[cam.channel] = np.array([f.timestamp_ns for f in fr], dtype=np.int64)
+        if not self.frames:
+            raise ImageSourceError(f"log {scene.log_id}: warp mode needs the source camera images, and the "
+                                   f"log has none for {scene.rig.camera_channels}")
+        self._views: OrderedDict[tuple[str, int], SourceView] = OrderedDict()
+        self._view_bytes = 0
+        self._valid: dict[str, np.ndarray | None] = {}
+        self.coverage: dict[str, dict[int, float]] = {}  # channel -> timestamp_ns -> covered fraction
+
+    # -- geometry -------------------------------------------------------------------------------
+    def city_T_ego_at(self, timestamp_ns: int) -> F64:
+        t = int(timestamp_ns)
+        if t not in self._poses:
+            if len(self._poses) > 4096:
+                self._poses.clear()
+            self._poses[t] = self.scene.city_T_ego_at(t)
+        return self._poses[t]
+
+    def boxes_at(self, timestamp_ns: int) -> BoxesAt:
+        t = int(timestamp_ns)
+        if t in self._boxes:
+            return self._boxes[t]
+        self._boxes[t] = self.tracks.at(t, DEFAULT_TOLERANCE_NS)
+        while len(self._boxes) > 256:
+            self._boxes.popitem(last=False)
+        return self._boxes[t]
+
+    def ground_at(self, timestamp_ns: int) -> GroundSurface:
+        """The ground plane under the ego at that time, refined by the log's height raster when it has one."""
+        raster = self.scene.ground_height if self.config.use_ground_raster else None
+        return GroundSurface.under_ego(self.city_T_ego_at(timestamp_ns), self.scene.rig.origin_height_m,
+                                       raster)
+
+    def geometry_at(self, timestamp_ns: int) -> tuple[ProxyGeometry, BoxesAt]:
+        """Ground, static lidar points and boxes at ``timestamp_ns`` (the boxes also with their tracks)."""
+        pts, radius = self.cloud.around(timestamp_ns)
+        boxes = self.boxes_at(timestamp_ns)
+        geometry = ProxyGeometry(self.ground_at(timestamp_ns), pts, radius, boxes.city_T_box, boxes.size_lwh)
+        return geometry, boxes
+
+    # -- sources --------------------------------------------------------------------------------
+    def _ego_valid(self, camera: CameraSpec) -> np.ndarray | None:
+        if camera.channel not in self._valid:
+            self._valid[camera.channel] = ~camera.ego_mask() if camera.ego_mask_polygons else None
+        return self._valid[camera.channel]
+
+    def source_view(self, channel: str, index: int) -> SourceView:
+        """Source image ``index`` of ``channel`` with its own depth proxy (cached)."""
+        frame = self.frames[channel][index]
+        key = (channel, int(frame.timestamp_ns))
+        if key in self._views:
+            self._views.move_to_end(key)
+            return self._views[key]
+        cam = self.scene.rig.camera(channel)
+        t = int(frame.timestamp_ns)
+        city_T_cam = self.city_T_ego_at(t) @ cam.ego_T_cam
+        scale = min(1.0, float(np.sqrt(self.config.visibility_max_pixels / (cam.width * cam.height))))
+        vis_cam = cam.scaled(scale) if scale < 1.0 else cam
+        geom, _ = self.geometry_at(t)
+        proxy = render_depth_proxy(vis_cam, city_T_cam, geom, self.config.proxy)
+        view = SourceView(read_rgb(Path(frame.path), cam), cam, city_T_cam, t, vis_cam, proxy.inverse_depth(),
+                          self._ego_valid(cam))
+        nbytes = view.image.nbytes + view.inv_depth.nbytes
+        self._views[key] = view
+        self._view_bytes += nbytes
+        while self._view_bytes > self.config.cache_mb * 2**20 and len(self._views) > 1:
+            _, old = self._views.popitem(last=False)
+            self._view_bytes -= old.image.nbytes + old.inv_depth.nbytes
+        return view
+
+    def source_candidates(self, camera: CameraSpec, city_T_cam: F64,
+                          timestamp_ns: int) -> list[tuple[str, int]]:
+        """(channel, frame index) of the source images near the time whose view cone meets the target's."""
+        cfg = self.config
+        axis_T = np.asarray(city_T_cam)[:3, 2]
+        cone_T = half_diagonal_fov(camera)
+        city_R_ego = self.city_T_ego_at(timestamp_ns)[:3, :3]
+        out = []
+        for ch, ts in self.frame_ns.items():
+            cam = self.scene.rig.camera(ch)
+            axis_S = city_R_ego @ cam.ego_T_cam[:3, 2]
+            cos = axis_T @ axis_S / np.linalg.norm(axis_T) / np.linalg.norm(axis_S)
+            ang = float(np.arccos(np.clip(cos, -1.0, 1.0)))
+            if ang > cone_T + half_diagonal_fov(cam) + cfg.overlap_margin_rad:
+                continue
+            dt = np.abs(ts - int(timestamp_ns))
+            for j in np.argsort(dt, kind="stable")[:cfg.frames_per_channel]:
+                if dt[j] <= cfg.max_source_offset_ns:
+                    out.append((ch, int(j)))
+        return out
+
+    @staticmethod
+    def box_motion(at_target: BoxesAt, at_source: BoxesAt) -> F64:
+        """(B, 4, 4) ``city(t_source) <- city(t_target)`` per target box; NaN where the track is absent."""
+        motion = np.full((len(at_target), 4, 4), np.nan)
+        if len(at_target) == 0 or len(at_source) == 0:
+            return motion
+        where = {int(k): i for i, k in enumerate(at_source.track)}
+        inv_T = T_inverse(at_target.city_T_box)
+        for b, k in enumerate(at_target.track):
+            i = where.get(int(k))
+            if i is not None:
+                motion[b] = at_source.city_T_box[i] @ inv_T[b]
+        return motion
+
+    # -- rendering ------------------------------------------------------------------------------
+    def render(self, camera: CameraSpec, city_T_cam: F64, timestamp_ns: int) -> WarpOutput:
+        """Warped float32 image, its coverage, and the number of source images used."""
+        t = int(timestamp_ns)
+        geom, boxes_T = self.geometry_at(t)
+        target = render_depth_proxy(camera, city_T_cam, geom, self.config.proxy)
+        sources, motions = [], []
+        for ch, j in self.source_candidates(camera, city_T_cam, t):
+            view = self.source_view(ch, j)
+            sources.append(view)
+            motions.append(self.box_motion(boxes_T, self.boxes_at(view.timestamp_ns)))
+        res = warp_from_sources(target, sources, t, motions, self.config.blend)
+        cov = res.coverage
+        rgb = fill_uncovered(res.rgb, cov, self.config.background, self.config.fill)
+        return WarpOutput(rgb, cov, len(sources))
+
+    def __call__(self, channel: str, camera: CameraSpec, city_T_cam: F64, timestamp_ns: int) -> np.ndarray:
+        """The writer's RenderFn: uint8 (H, W, 3) RGB."""
+        out = self.render(camera, city_T_cam, timestamp_ns)
+        self.coverage.setdefault(channel, {})[int(timestamp_ns)] = float(out.coverage.mean())
+        return np.clip(np.rint(out.rgb * 255.0), 0, 255).astype(np.uint8)
+
+    def save_coverage(self, path: Path) -> None:
+        """Per image covered fraction as JSON ``{channel: {timestamp_ns: fraction}}`` (atomic)."""
+        atomic_write_json(path, {ch: {str(t): v for t, v in sorted(d.items())}
+                                 for ch, d in sorted(self.coverage.items())}, indent=1)
+
+
+def warp_image_source(scene: SceneLog, config: WarpConfig | None = None, *, at_sweeps: bool = False,
+                      jpeg_quality: int = 95) -> RenderedImages:
+    """The writer's ImageSource for warp mode (one image per target camera at each sample time)."""
+    renderer = WarpRenderer(scene, config)
+    return RenderedImages(render=renderer, name=f"warp:{renderer.config.fingerprint()}", at_sweeps=at_sweeps,
+                          jpeg_quality=jpeg_quality)

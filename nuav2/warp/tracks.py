@@ -1,0 +1,100 @@
+"""Annotated cuboid tracks as city-frame poses that can be asked for at any time.
+
+AV2 boxes are annotated at sweep times in the ego frame; the warp needs each actor's pose at
+the target time and at every source image's own time (up to ~25 ms off a sweep), so boxes are
+moved into the city frame once and interpolated per track (slerp + lerp), extrapolated
+linearly for a short ``tolerance_ns`` past a track's ends.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from nuav2.geometry import F64, T_from_quat_trans, T_to_quat_trans, quat_slerp
+from nuav2.scene import SceneLog
+
+DEFAULT_TOLERANCE_NS = 60_000_000
+
+
+@dataclass(frozen=True)
+class BoxesAt:
+    """Boxes present at one time: their track number, city pose and size."""
+
+    track: np.ndarray  # (B,) int64 index into BoxTracks.track_ids
+    city_T_box: F64  # (B, 4, 4)
+    size_lwh: F64  # (B, 3)
+
+    def __len__(self) -> int:
+        return len(self.track)
+
+
+@dataclass(frozen=True)
+class BoxTracks:
+    """All tracks of a log, rows sorted by (track, time); ``starts[k]:starts[k+1]`` is track k."""
+
+    track_ids: np.ndarray  # (T,) object
+    starts: np.ndarray  # (T + 1,) int64
+    timestamp_ns: np.ndarray  # (K,) int64
+    city_q_box: F64  # (K, 4)
+    city_t_box: F64  # (K, 3)
+    size_lwh: F64  # (K, 3)
+
+    @staticmethod
+    def from_scene(scene: SceneLog) -> BoxTracks:
+        ann = scene.annotations
+        lo = scene.pose_timestamps_ns[0] - scene.max_pose_extrapolation_ns
+        hi = scene.pose_timestamps_ns[-1] + scene.max_pose_extrapolation_ns
+        covered = (ann.timestamp_ns >= lo) & (ann.timestamp_ns <= hi)  # rows the poses can place in the city
+        if not np.any(covered):
+            return BoxTracks(np.zeros(0, object), np.zeros(1, np.int64), np.zeros(0, np.int64),
+                             np.zeros((0, 4)), np.zeros((0, 3)), np.zeros((0, 3)))
+        rows = np.flatnonzero(covered)
+        track_ids, track_of = np.unique(ann.track_id[rows].astype(str), return_inverse=True)
+        order = rows[np.lexsort((ann.timestamp_ns[rows], track_of))]
+        track_of_row = np.empty(len(ann), np.int64)
+        track_of_row[rows] = track_of
+        ts = ann.timestamp_ns[order].astype(np.int64)
+        trk = track_of_row[order]
+        # Drop repeated (track, time) rows: interpolation needs strictly increasing times per track.
+        keep = np.ones(len(ts), bool)
+        keep[1:] = (trk[1:] != trk[:-1]) | (ts[1:] != ts[:-1])
+        order, ts, trk = order[keep], ts[keep], trk[keep]
+        city_T_ego = scene.city_T_ego_at(ts).reshape(-1, 4, 4)
+        ego_T_box = T_from_quat_trans(ann.ego_q_box[order], ann.ego_t_box[order])
+        q, t = T_to_quat_trans(city_T_ego @ ego_T_box)
+        starts = np.searchsorted(trk, np.arange(len(track_ids) + 1)).astype(np.int64)
+        return BoxTracks(track_ids, starts, ts, q, t, np.asarray(ann.size_lwh, np.float64)[order])
+
+    def __len__(self) -> int:
+        return len(self.track_ids)
+
+    def at(self, timestamp_ns: int, tolerance_ns: int = DEFAULT_TOLERANCE_NS) -> BoxesAt:
+        """Every track alive at ``timestamp_ns`` (within ``tolerance_ns`` of its ends), posed at that time."""
+        t = int(timestamp_ns)
+        lo_l, hi_l, alpha_l, track_l = [], [], [], []
+        for k in range(len(self.track_ids)):
+            s, e = int(self.starts[k]), int(self.starts[k + 1])
+            ts = self.timestamp_ns[s:e]
+            if t < ts[0] - tolerance_ns or t > ts[-1] + tolerance_ns:
+                continue
+            if e - s == 1:
+                lo, hi, a = s, s, 0.0
+            else:
+                j = int(np.clip(np.searchsorted(ts, t, side="right"), 1, e - s - 1))
+                lo, hi = s + j - 1, s + j
+                t_lo, t_hi = int(self.timestamp_ns[lo]), int(self.timestamp_ns[hi])
+                a = (t - t_lo) / float(t_hi - t_lo)
+            lo_l.append(lo)
+            hi_l.append(hi)
+            alpha_l.append(a)
+            track_l.append(k)
+        if not track_l:
+            return BoxesAt(np.zeros(0, np.int64), np.zeros((0, 4, 4)), np.zeros((0, 3)))
+        lo, hi = np.array(lo_l), np.array(hi_l)
+        alpha = np.array(alpha_l)
+        q = quat_slerp(self.city_q_box[lo], self.city_q_box[hi], alpha)
+        tr = self.city_t_box[lo] + alpha[:, None] * (self.city_t_box[hi] - self.city_t_box[lo])
+        near = np.where(alpha < 0.5, lo, hi)
+        return BoxesAt(np.array(track_l, np.int64), T_from_quat_trans(q, tr), self.size_lwh[near])

@@ -1,0 +1,185 @@
+"""Seeding: motion classification, voxel/box geometry, z-buffered colouring, LiDAR aggregation on real AV2."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from nuav2.geometry import T_from_quat_trans, T_inverse, make_T, translation_T
+from nuav2.rig import CameraSpec
+from nuav2.splat.init import (
+    GroundSurface,
+    InitConfig,
+    SourceView,
+    aggregate_lidar,
+    bilinear,
+    box_surface_points,
+    build_tracks,
+    colour_seeds,
+    ground_seeds,
+    is_moving,
+    knn_scales,
+    points_in_box,
+    track_motion,
+    voxel_downsample,
+)
+from nuav2.splat.scene_model import TrackPoses, scene_frame_for
+
+CAM_R_FORWARD_X = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+
+
+def test_voxel_downsample_centroids():
+    pts = np.array([[0.01, 0.01, 0.01], [0.09, 0.05, 0.03], [0.55, 0.0, 0.0], [-0.05, 0.0, 0.0]])
+    out = voxel_downsample(pts, 0.1)
+    expect = {(-0.05, 0.0, 0.0), (0.05, 0.03, 0.02), (0.55, 0.0, 0.0)}
+    assert {tuple(np.round(p, 6)) for p in out} == expect
+    assert len(voxel_downsample(np.zeros((0, 3)), 0.1)) == 0
+    with pytest.raises(ValueError, match="voxel"):
+        voxel_downsample(pts, 0.0)
+
+
+def test_points_in_rotated_box_roundtrip():
+    rng = np.random.default_rng(0)
+    frame_T_box = T_from_quat_trans(rng.normal(size=4), [10.0, -3.0, 1.0])
+    size = np.array([4.0, 2.0, 1.5])
+    inside_box = rng.uniform(-0.49, 0.49, (50, 3)) * size
+    outside_box = inside_box.copy()
+    outside_box[:, 0] = np.sign(outside_box[:, 0] + 1e-9) * (size[0] / 2 + 0.3)
+    pts = np.concatenate([inside_box, outside_box]) @ frame_T_box[:3, :3].T + frame_T_box[:3, 3]
+    m = points_in_box(pts, T_inverse(frame_T_box), size, margin=0.0)
+    assert m[:50].all() and not m[50:].any()
+    assert points_in_box(pts, T_inverse(frame_T_box), size, margin=0.35)[50:].all()
+
+
+def test_box_surface_points_lie_on_faces():
+    size = np.array([4.0, 2.0, 1.5])
+    p = box_surface_points(size, 500, np.random.default_rng(1))
+    rel = np.abs(p) / (size / 2)
+    assert np.all(rel <= 1 + 1e-9)
+    assert np.allclose(rel.max(axis=1), 1.0)
+
+
+def _track(centres: np.ndarray) -> TrackPoses:
+    ts = np.arange(len(centres), dtype=np.int64) * 100_000_000
+    return TrackPoses("t", "REGULAR_VEHICLE", np.array([4.0, 2.0, 1.5]), ts,
+                      np.stack([translation_T(*c) for c in centres]))
+
+
+def test_motion_rule_separates_jitter_from_driving():
+    rng = np.random.default_rng(2)
+    parked = _track(np.column_stack([rng.normal(0, 0.05, 150), rng.normal(0, 0.05, 150), np.zeros(150)]))
+    path, std = track_motion(parked)
+    assert path > 1.0 and std < 0.3  # long jitter path, tiny spread: must stay background
+    cfg = InitConfig()
+    assert not is_moving(parked, cfg)
+    driving = _track(np.column_stack([np.linspace(0, 10, 20), np.zeros(20), np.zeros(20)]))
+    assert is_moving(driving, cfg)
+    assert not is_moving(_track(np.zeros((1, 3))), cfg)
+
+
+def test_bilinear_sampling_oracle():
+    img = np.arange(4 * 5 * 3, dtype=np.float32).reshape(4, 5, 3)
+    np.testing.assert_allclose(bilinear(img, np.array([2.0]), np.array([1.0]))[0], img[1, 2])
+    mid = bilinear(img, np.array([2.5]), np.array([1.5]))[0]
+    np.testing.assert_allclose(mid, img[1:3, 2:4].reshape(-1, 3).mean(0))
+    np.testing.assert_allclose(bilinear(img, np.array([-3.0]), np.array([9.0]))[0], img[3, 0])
+
+
+def _view(image: np.ndarray, city_T_cam: np.ndarray, ts: int = 0, f: float = 20.0) -> SourceView:
+    h, w = image.shape[:2]
+    K = np.array([[f, 0, (w - 1) / 2], [0, f, (h - 1) / 2], [0, 0, 1.0]])
+    cam = CameraSpec("CAM", w, h, K, np.eye(4))
+    return SourceView(0, "CAM", ts, Path("unused.jpg"), cam, city_T_cam, np.ones((h, w), bool),
+                      _image=image.astype(np.float32))
+
+
+def test_colouring_respects_occlusion_and_moves_objects():
+    """A point hidden behind a nearer one takes no colour; object seeds are coloured at the view time."""
+    h, w = 21, 31
+    img = np.zeros((h, w, 3), np.float32)
+    img[:, : w // 2] = [1.0, 0.0, 0.0]  # left half red
+    img[:, w // 2 :] = [0.0, 1.0, 0.0]  # right half green
+    city_T_cam = make_T(CAM_R_FORWARD_X, [0, 0, 0])
+    view = _view(img, city_T_cam, ts=50)
+    # A small wall of near points on the optical axis, one point right behind it, one far to the left.
+    wall = np.array([[5.0, y, z] for y in np.linspace(-0.3, 0.3, 7) for z in np.linspace(-0.3, 0.3, 7)])
+    behind = np.array([[12.0, 0.0, 0.0]])
+    left = np.array([[10.0, 3.0, 0.0]])  # +y world = left in the image
+    bg = np.concatenate([wall, behind, left])
+    # An object whose box sits at y = -3 (right side) at t=50 and the box-frame seed at its centre.
+    track = TrackPoses("car", "REGULAR_VEHICLE", np.array([1.0, 1.0, 1.0]), np.array([0, 100], np.int64),
+                       np.stack([translation_T(10.0, -6.0, 0.0), translation_T(10.0, 0.0, 0.0)]))
+    cfg = InitConfig(zbuf_cell_px=1, sky_dilate_px=0)
+    bg_col, obj_col = colour_seeds(bg, {"car": np.zeros((1, 3))}, {"car": track}, [view], np.eye(4), cfg)
+    assert np.isfinite(bg_col.rgb[: len(wall)]).all()
+    assert np.isnan(bg_col.rgb[len(wall)]).all() and bg_col.seen[len(wall)] == 0  # occluded
+    np.testing.assert_allclose(bg_col.rgb[-1], [1.0, 0.0, 0.0])
+    np.testing.assert_allclose(obj_col["car"].rgb[0], [0.0, 1.0, 0.0])
+    # The sky mask never covers pixels where seeds project, and never looks down.
+    sky = bg_col.sky_masks[0]
+    assert not sky[h // 2, w // 2] and not sky[-1].any() and sky[0].any()
+
+
+def test_knn_scales_regular_grid():
+    g = np.stack(np.meshgrid(np.arange(5.0), np.arange(5.0), [0.0]), -1).reshape(-1, 3) * 0.2
+    s = knn_scales(g, 3, 0.01, 1.0)
+    assert np.all(s >= 0.2 - 1e-9) and np.median(s) == pytest.approx(0.2)
+    assert len(knn_scales(np.zeros((0, 3)))) == 0
+
+
+@pytest.fixture(scope="module")
+def fixture_scene(av2_fixture_log, av2_fixture_calibration):
+    from converters.av2 import read_log
+
+    return read_log(av2_fixture_log, av2_fixture_calibration, require_cameras=False)
+
+
+def test_aggregate_real_av2_sweep_routes_moving_box_points(fixture_scene):
+    scene = fixture_scene
+    cfg = InitConfig()
+    city_T_scene = scene_frame_for(scene.city_T_ego[0])
+    scene_T_city = T_inverse(city_T_scene)
+    tracks = build_tracks(scene, scene_T_city)
+    moving = {t.track_id: t for t in tracks if is_moving(t, cfg)}
+    assert 0 < len(moving) < len(tracks)  # the real log has both parked and moving actors
+    agg = aggregate_lidar(scene, scene_T_city, moving, cfg)
+    n_obj = sum(len(p) for p in agg.objects.values())
+    assert n_obj > 0 and len(agg.background) + n_obj == agg.n_points
+    ann, ts = scene.annotations, int(scene.lidar_sweeps[0].timestamp_ns)
+    scene_T_ego = scene_T_city @ scene.city_T_ego_at(ts)
+    for row in ann.at(ts):
+        tid = str(ann.track_id[row])
+        if tid not in moving:
+            continue
+        ego_T_box = T_from_quat_trans(ann.ego_q_box[row], ann.ego_t_box[row])
+        half = ann.size_lwh[row] / 2 + cfg.box_margin_m
+        assert np.all(np.abs(agg.objects[tid]) <= half + 1e-9)
+        # No background point lies in this moving box (oracle: the box test in the scene frame).
+        box_T_scene = T_inverse(scene_T_ego @ ego_T_box)
+        margin = cfg.box_margin_m - 1e-6
+        assert not points_in_box(agg.background, box_T_scene, ann.size_lwh[row], margin).any()
+    # Scene coordinates are small (recentred) even though the city frame is km-scale.
+    assert np.abs(agg.background).max() < 500.0 and np.abs(scene.city_T_ego[0, :2, 3]).max() > 1000.0
+
+
+def test_ground_seeds_follow_raster_and_skip_occupied(fixture_scene):
+    scene = fixture_scene
+    city_T_scene = scene_frame_for(scene.city_T_ego[0])
+    scene_T_city = T_inverse(city_T_scene)
+    surface = GroundSurface(scene, scene_T_city)
+    cfg = InitConfig(ground_spacing_m=1.0, ground_radius_m=8.0)
+    seeds = ground_seeds(surface, np.zeros((0, 2)), cfg)
+    assert len(seeds) > 100
+    z_city = scene.ground_height.height_at(seeds[:, :2] + city_T_scene[:2, 3])
+    ok = np.isfinite(z_city)
+    assert ok.mean() > 0.9
+    np.testing.assert_allclose(seeds[ok, 2], z_city[ok] - city_T_scene[2, 3], atol=1e-9)
+    blocked = seeds[:10, :2]
+    fewer = ground_seeds(surface, blocked, cfg)
+    assert len(fewer) <= len(seeds) - 10
+    d = np.min(np.linalg.norm(fewer[:, None, :2] - blocked[None], axis=-1), axis=1)
+    assert np.all(d > 0.3)
+    assert math.isfinite(float(surface(np.zeros((1, 2)))[0]))
