@@ -1,6 +1,12 @@
 """nuav2: Argoverse 2 sensor logs as nuScenes databases, re-rendered into any camera rig (MapGS)."""
 
+import os as _os
+
 __version__ = "0.1.0"
+
+# torch and numba share one libgomp that reads this once, at torch's import: spin-waiting
+# OpenMP threads made the splat kernels 3-4x slower on a loaded 2-core machine.
+_os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 # Lets the unmodified devkit's NuScenesMap open our per-log "av2-xxx-xxxxxxxx" locations;
 # patches are applied lazily, when the devkit is imported (see devkit_compat).
