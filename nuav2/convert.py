@@ -64,6 +64,13 @@ class ConvertOptions:
             raise ConvertError(f"version must be a plain directory name, got {self.version!r}")
         if self.calibration_dir is not None and not Path(self.calibration_dir).is_dir():
             raise ConvertError(f"{self.calibration_dir}: calibration directory not found")
+        if self.mode == "render":
+            from nuav2.recon import ReconConfig
+
+            try:
+                ReconConfig.preset(self.recon_preset)
+            except ValueError as e:
+                raise ConvertError(str(e)) from e
         if self.mode != "native":
             if not self.scale > 0:
                 raise ConvertError(f"scale must be > 0, got {self.scale}")
@@ -77,12 +84,26 @@ class ConvertOptions:
         p = Path(self.rig)
         return hashlib.sha256(p.read_bytes()).hexdigest()[:16] if p.suffix and p.is_file() else self.rig
 
+    def _provider_key(self) -> str | None:
+        """What produces re-rendered images (config hash), so a changed default redoes the shards."""
+        if self.mode == "warp":
+            from nuav2.warp.provider import WarpConfig
+
+            return WarpConfig().fingerprint()
+        if self.mode == "render":
+            from nuav2.recon import ReconConfig
+
+            cfg = json.dumps(ReconConfig.preset(self.recon_preset).to_dict(), sort_keys=True, default=str)
+            return hashlib.sha256(cfg.encode()).hexdigest()[:12]
+        return None
+
     def fingerprint(self) -> str:
         """Hash of everything that changes a shard's content; resume only reuses matching shards."""
         key = {"writer": WRITER_FORMAT, "mode": self.mode, "keyframe_hz": self.keyframe_hz,
                "images": NativeImages(self.image_link).fingerprint() if self.mode == "native" else None,
                "target": None if self.mode == "native" else [self._rig_key(), self.scale],
                "recon": self.recon_preset if self.mode == "render" else None,
+               "provider": self._provider_key(),
                "calibration": str(Path(self.calibration_dir).resolve()) if self.calibration_dir else None,
                "require_cameras": self.require_cameras}
         return hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()[:16]

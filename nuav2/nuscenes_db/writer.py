@@ -224,7 +224,9 @@ def _write_cameras(scene: SceneLog, timeline: Timeline, out_rig: Rig, images: Im
                    options: WriterOptions) -> dict[tuple[str, int], str]:
     """The image source stores each image, given its camera's pose in the city frame at its time."""
     filenames: dict[tuple[str, int], str] = {}
-    cam_frames = [f for ch in shots for f in timeline.frames[ch]]
+    # Time-major order: a renderer that caches source views reuses them across target cameras.
+    cam_frames = sorted((f for ch in shots for f in timeline.frames[ch]),
+                        key=lambda f: (f.timestamp_us, f.channel))
     for f in tqdm(cam_frames, desc=f"{scene.log_id[:8]} cameras", unit="img", leave=False,
                   disable=not options.show_progress or not cam_frames):
         shot = shots[f.channel][f.index]
