@@ -70,27 +70,28 @@ def seeded(tiny_scene) -> SplatScene:
 
 
 def test_target_rig_psnr_floor_and_training_gain(trained, seeded, tiny_scene, tiny_world):
-    """Measured at writing: seeding alone ~16 dB, 200 iterations ~19-20 dB on this 0.5 s log."""
+    """Measured at writing: seeding alone 15.7 dB / SSIM 0.45, 200 iterations 21.0 dB / 0.75 (worst
+    camera CAM_BACK_LEFT 18.6 dB) on this 0.5 s log; the floors leave ~1.5 dB of margin."""
     after = target_rig_scores(trained, tiny_scene, tiny_world, scale=TARGET_SCALE, n_times=3, paint=False)
     before = target_rig_scores(seeded, tiny_scene, tiny_world, scale=TARGET_SCALE, n_times=3, paint=False)
     assert set(after["per_camera"]) == set(load_rig("nuscenes").camera_channels)
-    assert after["psnr_db"] >= 18.0
-    assert after["psnr_db"] >= before["psnr_db"] + 1.5
-    assert after["ssim"] >= 0.6 and after["ssim"] > before["ssim"]
-    assert min(c["psnr_db"] for c in after["per_camera"].values()) >= 15.0  # CAM_BACK included
+    assert after["psnr_db"] >= 19.5
+    assert after["psnr_db"] >= before["psnr_db"] + 3.0
+    assert after["ssim"] >= 0.7 and after["ssim"] > before["ssim"]
+    assert min(c["psnr_db"] for c in after["per_camera"].values()) >= 17.0  # CAM_BACK included
 
 
 def test_heldout_source_views(trained, tiny_scene):
     held = heldout_psnr(trained, tiny_scene)
     assert held is not None and held["images"] == 14  # 7 cameras x 10 images, every 5th held out
-    assert held["psnr_db"] >= 18.0
+    assert held["psnr_db"] >= 20.5  # measured 22.3 dB
 
 
 def test_lane_paint_lines_up_with_map(trained, tiny_scene, tiny_world):
     """Projected solid map paint lands on rendered paint: median offset close to ground truth's.
 
     At the source images' own scale (1/16 of nuScenes) paint is ~1 px wide, so ground truth itself
-    scores ~1.1 px (the detector's floor); measured at writing: render 0.9 px, 1533 of 1783 points."""
+    scores ~1.1 px (the detector's floor); measured at writing: render 0.8 px, 1390 of 1783 points."""
     scores = target_rig_scores(trained, tiny_scene, tiny_world, scale=TARGET_SCALE, n_times=3)
     paint = scores["paint"]
     assert paint["points_truth"] > 500 and paint["points_render"] > 0.6 * paint["points_truth"]
@@ -229,3 +230,34 @@ def test_split_views_holds_out_every_kth(tiny_scene):
     assert len(train) + len(held) == len(views) and len(held) == 14
     assert not {(v.channel, v.timestamp_ns) for v in train} & {(v.channel, v.timestamp_ns) for v in held}
     assert split_views(views, 0) == (views, [])
+
+
+def test_render_source_through_the_real_writer_and_devkit(trained, tiny_scene, tiny_world, tmp_path):
+    """The provider plugged into the nuScenes writer: the devkit loads the database, and its images,
+    re-rendered by the synthetic world at the poses read back from the tables, score like the
+    direct target-rig evaluation (same poses, same pixels)."""
+    from nuscenes.nuscenes import NuScenes
+
+    from nuav2.evaluate.against_world import key_camera_images, log_offsets, score_against_world
+    from nuav2.nuscenes_db.merge import merge_shards
+    from nuav2.nuscenes_db.shards import save_shard, shard_dir
+    from nuav2.nuscenes_db.writer import WriterOptions, write_log
+
+    version = "v1.0-recon-test"
+    out_rig = load_rig("nuscenes", scale=TARGET_SCALE).with_origin_height(0.0)
+    source = render_provider(trained)
+    shard = write_log(tiny_scene, out_rig, source, tmp_path, WriterOptions(show_progress=False))
+    path = shard_dir(tmp_path, version, tiny_scene.log_id)
+    save_shard(path, shard, source.fingerprint())
+    merge_shards(tmp_path, version, {tiny_scene.log_id: path}, {tiny_scene.log_id: "scene-0000"})
+    nusc = NuScenes(version, str(tmp_path), verbose=False)
+    assert len(nusc.sample) == len(tiny_scene.lidar_sweeps)
+    sd = nusc.get("sample_data", nusc.sample[0]["data"]["CAM_BACK"])
+    assert (sd["width"], sd["height"]) == (100, 56)
+    # Every written image was scored by the quality gate as it was rendered.
+    n_images = sum(len(v) for v in source.render.coverage.values())
+    assert n_images == 6 * len(nusc.sample)
+    scores = score_against_world(key_camera_images(tmp_path, version, log_offsets(tmp_path, version)),
+                                 tiny_world)
+    mean_psnr = float(np.mean([np.mean(s.psnr_db) for s in scores.values()]))
+    assert set(scores) == set(out_rig.camera_channels) and mean_psnr >= 19.0  # JPEG q95 costs a little

@@ -125,9 +125,10 @@ def default_budgets() -> list[dict]:
     return [
         {"name": "init-only", "iterations": 0, "gaussians": 90_000, "train_width_px": 256},
         {"name": "fast", "iterations": 600, "gaussians": 90_000, "train_width_px": 256},
-        {"name": "half-res", "iterations": 1500, "gaussians": 150_000, "train_width_px": 128},
-        {"name": "medium", "iterations": 1200, "gaussians": 150_000, "train_width_px": 256},
-        {"name": "default", "iterations": 2000, "gaussians": 200_000, "train_width_px": 256},
+        {"name": "half-res", "iterations": 1200, "gaussians": 90_000, "train_width_px": 128},
+        {"name": "medium", "iterations": 1200, "gaussians": 90_000, "train_width_px": 256},
+        {"name": "default", "iterations": 2000, "gaussians": 100_000, "train_width_px": 256},
+        {"name": "large", "iterations": 3000, "gaussians": 200_000, "train_width_px": 256},
     ]
 
 
@@ -135,6 +136,7 @@ def config_for(budget: dict, holdout_every: int):
     from nuav2.recon import ReconConfig
 
     base = ReconConfig.fast() if budget["name"] in ("init-only", "fast") else ReconConfig.default()
+    # (fast and init-only train on every other image, like the fast preset; the rest on all)
     n = int(budget["iterations"])
     dens = replace(base.train.densify, budget=int(budget["gaussians"]), stop=int(0.8 * n))
     init = replace(base.init, max_background=min(base.init.max_background, int(budget["gaussians"])))

@@ -20,7 +20,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("log_dir", type=Path, nargs="?", default=None, help="a synthetic log directory")
     p.add_argument("--seed", type=int, default=0, help="synthetic world seed when generating")
     p.add_argument("--budgets", default=None,
-                   help="comma-separated budget names (default: init-only,fast,half-res,medium,default)")
+                   help="comma-separated budget names (default: all of them)")
     p.add_argument("--holdout-every", type=int, default=5, help="hold out every k-th source image per camera")
     p.add_argument("--times", type=int, default=6, help="sample times scored in the target rig")
     p.add_argument("--out", type=Path, default=None, help="also write the JSON here")

@@ -31,16 +31,16 @@ from nuav2.splat.scene_model import PARAM_NAMES, GaussianSet, inverse_sigmoid
 @dataclass(frozen=True)
 class DensifyConfig:
     start: int = 100
-    stop: int = 100_000
+    stop: int = 1600
     every: int = 100
     grad_threshold: float = 2e-4  # mean |d loss / d means2d| in NDC units
     split_scale_frac: float = 0.01  # of the scene extent: larger Gaussians split, smaller clone
     prune_opacity: float = 0.005
     prune_scale_frac: float = 0.1  # of the scene extent
     object_box_margin: float = 1.5  # object Gaussians beyond this multiple of the half box size go
-    reset_every: int = 3000  # 0: never
+    reset_every: int = 0  # 0: never (a reset costs more than it gains in a few thousand iterations)
     reset_opacity: float = 0.01
-    budget: int = 200_000
+    budget: int = 100_000
     min_views: int = 1  # a Gaussian needs this many visible renders since the last step to grow
 
 

@@ -57,6 +57,9 @@ class InitConfig:
     sky_width: int = 128
     sky_min_elevation_deg: float = 1.0
     sky_dilate_px: int = 3
+    sky_colour_tol: float = 0.12  # a sky candidate must be this close (RGB, [0,1]) to the sky's colour
+    facade_view_stride: int = 4  # facade seeds from every k-th view (0 disables them)
+    facade_max_gap_frac: float = 0.4  # carry LiDAR depth up a column at most this fraction of the height
     motion_min_path_m: float = 1.0  # a track moves if its path is longer than this ...
     motion_min_std_m: float = 0.3  # ... and its position spread (largest axis std) exceeds this
     motion_min_observations: int = 2
@@ -422,12 +425,113 @@ def _sky_mask(view: SourceView, scene_T_city: F64, proj: Projection, min_sin: fl
     covered[rows, np.clip(np.round(proj.u).astype(np.int64), 0, w - 1)] = 1
     if dilate > 0:
         covered = cv2.dilate(covered, np.ones((2 * dilate + 1, 2 * dilate + 1), np.uint8))
+    up = _elevation_sin(view, scene_T_city) > min_sin
+    return up & (covered == 0) & view.valid
+
+
+def _elevation_sin(view: SourceView, scene_T_city: F64) -> np.ndarray:
+    """(H, W) sine of each pixel ray's elevation in the scene frame (z up)."""
+    h, w = view.cam.height, view.cam.width
     R = (scene_T_city @ view.city_T_cam)[:3, :3]
     K = view.cam.K
     u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
     d = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones_like(u)], -1) @ R.T
-    up = d[..., 2] / np.linalg.norm(d, axis=-1) > min_sin
-    return up & (covered == 0) & view.valid
+    return d[..., 2] / np.linalg.norm(d, axis=-1)
+
+
+def refine_sky_masks(views: list[SourceView], candidates: dict[int, np.ndarray], scene_T_city: F64,
+                     tol: float = 0.12, n_bins: int = 18) -> dict[int, np.ndarray]:
+    """Keep only candidate sky pixels whose colour matches the sky at their elevation.
+
+    LiDAR does not reach the tops of tall buildings, so "no seed projects here" also marks
+    facades above the highest beam. The sky's colour per elevation band is the median over all
+    candidates (facades are a minority), and a candidate stays sky only within ``tol`` (RGB
+    distance in [0, 1]) of it."""
+    elev: dict[int, np.ndarray] = {}
+    samples_e, samples_c = [], []
+    for view in views:
+        m = candidates.get(view.index)
+        if m is None or not m.any():
+            continue
+        e = _elevation_sin(view, scene_T_city)
+        elev[view.index] = e
+        idx = np.flatnonzero(m.ravel())[::7]  # a subsample is plenty for a median
+        samples_e.append(e.ravel()[idx])
+        samples_c.append(view.image().reshape(-1, 3)[idx])
+    if not samples_e:
+        return {k: v.copy() for k, v in candidates.items()}
+    se, sc = np.concatenate(samples_e), np.concatenate(samples_c)
+    bins = np.clip((np.arcsin(np.clip(se, -1, 1)) / (np.pi / 2) * n_bins).astype(int), 0, n_bins - 1)
+    ref = np.full((n_bins, 3), np.nan)
+    for b in range(n_bins):
+        if np.any(bins == b):
+            ref[b] = np.median(sc[bins == b], axis=0)
+    ok = np.all(np.isfinite(ref), axis=1)
+    if not ok.any():
+        return {k: v.copy() for k, v in candidates.items()}
+    good = np.flatnonzero(ok)
+    ref = ref[good[np.argmin(np.abs(good[None, :] - np.arange(n_bins)[:, None]), axis=1)]]  # fill gaps
+    out = {}
+    for view in views:
+        m = candidates.get(view.index)
+        if m is None or view.index not in elev:
+            out[view.index] = np.zeros((view.cam.height, view.cam.width), bool) if m is None else m.copy()
+            continue
+        b = np.clip((np.arcsin(np.clip(elev[view.index], -1, 1)) / (np.pi / 2) * n_bins).astype(int), 0,
+                    n_bins - 1)
+        dist = np.linalg.norm(view.image() - ref[b], axis=-1)
+        out[view.index] = m & (dist < tol)
+    return out
+
+
+def facade_seeds(views: list[SourceView], candidates: dict[int, np.ndarray], sky: dict[int, np.ndarray],
+                 lidar_scene: F64, scene_T_city: F64, cfg: InitConfig) -> tuple[F64, np.ndarray]:
+    """Seeds for structure above the LiDAR's reach (tall facades), with their pixel colours.
+
+    Pixels that no seed covers but that are not sky either are placed along their ray at the
+    camera depth of the nearest LiDAR-covered pixel below them in the same column: on a vertical
+    facade seen by a level camera that depth is constant up the column."""
+    pts_out, rgb_out = [], []
+    max_gap = cfg.facade_max_gap_frac
+    for view in views[:: max(1, cfg.facade_view_stride)]:
+        cand, sk = candidates.get(view.index), sky.get(view.index)
+        if cand is None or sk is None:
+            continue
+        miss = cand & ~sk
+        if not miss.any():
+            continue
+        h, w = view.cam.height, view.cam.width
+        scene_T_cam = scene_T_city @ view.city_T_cam
+        proj = project(lidar_scene, view.cam, T_inverse(scene_T_cam))
+        zimg = np.full(h * w, np.inf)
+        rows = np.clip(np.round(proj.v).astype(np.int64), 0, h - 1)
+        np.minimum.at(zimg, rows * w + np.clip(np.round(proj.u).astype(np.int64), 0, w - 1), proj.z)
+        zimg = zimg.reshape(h, w)
+        carried = zimg.copy()
+        age = np.where(np.isfinite(zimg), 0, h)
+        for r in range(h - 2, -1, -1):  # carry the depth upwards, remembering how far it came
+            take = ~np.isfinite(zimg[r]) & np.isfinite(carried[r + 1])
+            carried[r] = np.where(take, carried[r + 1], zimg[r])
+            age[r] = np.where(take, age[r + 1] + 1, age[r])
+        pick = miss & np.isfinite(carried) & (age <= max_gap * h)
+        pick[1::2] = False
+        pick[:, 1::2] = False
+        vv, uu = np.nonzero(pick)
+        if len(vv) == 0:
+            continue
+        K = view.cam.K
+        z = carried[vv, uu]
+        p_cam = np.column_stack([(uu - K[0, 2]) / K[0, 0] * z, (vv - K[1, 2]) / K[1, 1] * z, z])
+        pts_out.append(p_cam @ scene_T_cam[:3, :3].T + scene_T_cam[:3, 3])
+        rgb_out.append(view.image()[vv, uu])
+    if not pts_out:
+        return np.zeros((0, 3)), np.zeros((0, 3), np.float32)
+    pts, rgb = np.concatenate(pts_out), np.concatenate(rgb_out)
+    # One seed per voxel (the first pixel's colour), so many views of a facade do not pile up.
+    key = np.floor(pts / (2 * cfg.voxel_m)).astype(np.int64)
+    _, first = np.unique(key, axis=0, return_index=True)
+    first = np.sort(first)
+    return pts[first], rgb[first]
 
 
 def knn_scales(points: F64, k: int = 3, lo: float = 0.02, hi: float = 2.0) -> F64:
@@ -490,6 +594,9 @@ def sky_texture_from_views(views: list[SourceView], sky_masks: dict[int, np.ndar
 
 # ---- the initial scene -----------------------------------------------------------------------------
 
+LIDAR, GROUND, FACADE = 0, 1, 2  # kinds of background seeds
+
+
 @dataclass
 class InitResult:
     """The seeded scene plus what training needs from seeding (sky masks) and a summary."""
@@ -519,7 +626,7 @@ def initial_scene(scene: SceneLog, views: list[SourceView], cfg: InitConfig, *, 
     occupied = occupied_cells(bg_lidar, surface, cfg.ground_clear_height_m)
     ground = ground_seeds(surface, occupied, cfg)
     bg_pts = np.concatenate([bg_lidar, ground])
-    is_ground = np.concatenate([np.zeros(len(bg_lidar), bool), np.ones(len(ground), bool)])
+    kind = np.concatenate([np.full(len(bg_lidar), LIDAR), np.full(len(ground), GROUND)])
     obj_pts: dict[str, F64] = {}
     for tid, pts in agg.objects.items():
         pts = cap_points(voxel_downsample(pts, cfg.object_voxel_m), cfg.max_object_points, rng)
@@ -529,12 +636,20 @@ def initial_scene(scene: SceneLog, views: list[SourceView], cfg: InitConfig, *, 
         obj_pts[tid] = pts
     bg_col, obj_col = colour_seeds(bg_pts, obj_pts, moving, views, scene_T_city, cfg, progress=progress)
 
+    sky_masks = refine_sky_masks(views, bg_col.sky_masks, scene_T_city, cfg.sky_colour_tol)
+
     keep = np.isfinite(bg_col.rgb).all(1) if not cfg.keep_unseen else np.ones(len(bg_pts), bool)
     bg_rgb = np.where(np.isfinite(bg_col.rgb), bg_col.rgb, 0.5)
-    bg_pts, bg_rgb, is_ground = bg_pts[keep], bg_rgb[keep], is_ground[keep]
+    bg_pts, bg_rgb, kind = bg_pts[keep], bg_rgb[keep], kind[keep]
+    facade, facade_rgb = (facade_seeds(views, bg_col.sky_masks, sky_masks, bg_lidar, scene_T_city, cfg)
+                          if cfg.facade_view_stride > 0 else (np.zeros((0, 3)), np.zeros((0, 3))))
+    bg_pts = np.concatenate([bg_pts, facade])
+    bg_rgb = np.concatenate([bg_rgb, facade_rgb])
+    kind = np.concatenate([kind, np.full(len(facade), FACADE)])
     if len(bg_pts) > cfg.max_background:
         sel = np.sort(rng.choice(len(bg_pts), cfg.max_background, replace=False))
-        bg_pts, bg_rgb, is_ground = bg_pts[sel], bg_rgb[sel], is_ground[sel]
+        bg_pts, bg_rgb, kind = bg_pts[sel], bg_rgb[sel], kind[sel]
+    is_ground = kind == GROUND
     scales = np.repeat(knn_scales(bg_pts, 3, cfg.min_scale_m, cfg.max_scale_m)[:, None], 3, axis=1)
     # Ground seeds are flat discs on a regular grid: they tile the road without gaps or bumps.
     scales[is_ground] = [0.6 * cfg.ground_spacing_m, 0.6 * cfg.ground_spacing_m, 0.02]
@@ -554,7 +669,7 @@ def initial_scene(scene: SceneLog, views: list[SourceView], cfg: InitConfig, *, 
                                                                    sh_degree=sh_degree)))
 
     sky = SkyModel(cfg.sky_height, cfg.sky_width)
-    tex = sky_texture_from_views(views, bg_col.sky_masks, scene_T_city, cfg.sky_height, cfg.sky_width)
+    tex = sky_texture_from_views(views, sky_masks, scene_T_city, cfg.sky_height, cfg.sky_width)
     if tex is not None:
         with torch.no_grad():
             p = torch.from_numpy(np.clip(tex, 0.02, 0.98)).float().permute(2, 0, 1)
@@ -562,8 +677,10 @@ def initial_scene(scene: SceneLog, views: list[SourceView], cfg: InitConfig, *, 
     splat = SplatScene(city_T_scene, background, objects, sky)
     stats = {"tracks": len(tracks), "moving_tracks": len(moving), "objects": len(objects),
              "lidar_sweeps": agg.n_sweeps, "lidar_points": agg.n_points,
-             "background_lidar_seeds": int((~is_ground).sum()), "ground_seeds": int(is_ground.sum()),
+             "background_lidar_seeds": int((kind == LIDAR).sum()),
+             "facade_seeds": int((kind == FACADE).sum()),
+             "ground_seeds": int(is_ground.sum()),
              "background_gaussians": len(background),
              "object_gaussians": int(sum(len(o.gaussians) for o in objects)),
-             "sky_pixels": int(sum(int(m.sum()) for m in bg_col.sky_masks.values()))}
-    return InitResult(splat, bg_col.sky_masks, stats)
+             "sky_pixels": int(sum(int(m.sum()) for m in sky_masks.values()))}
+    return InitResult(splat, sky_masks, stats)

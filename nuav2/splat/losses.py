@@ -9,7 +9,6 @@ compare like with like.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import torch
 import torch.nn.functional as F
@@ -50,15 +49,6 @@ def masked_target(pred: torch.Tensor, target: torch.Tensor, valid: torch.Tensor 
     if valid is None:
         return target
     return torch.where(valid[..., None], target, pred.detach())
-
-
-@dataclass
-class LossParts:
-    total: torch.Tensor
-    l1: float
-    ssim: float
-    depth: float
-    sky: float
 
 
 def photometric_loss(pred: torch.Tensor, target: torch.Tensor, valid: torch.Tensor | None = None,

@@ -38,9 +38,9 @@ CHECKPOINT_FORMAT = "nuav2-splat-train/1"
 
 @dataclass(frozen=True)
 class TrainConfig:
-    iterations: int = 1500
-    pyramid: tuple[float, ...] = (0.25, 0.5, 1.0)  # resolution factors of the training images ...
-    pyramid_until: tuple[float, ...] = (0.15, 0.4)  # ... switching at these fractions of the run
+    iterations: int = 2000
+    pyramid: tuple[float, ...] = (0.5, 1.0)  # resolution factors of the training images ...
+    pyramid_until: tuple[float, ...] = (0.25,)  # ... switching at these fractions of the run
     sh_degree_every: int = 500  # raise the active SH degree every this many iterations
     lambda_ssim: float = 0.2
     lambda_depth: float = 0.05
