@@ -50,6 +50,7 @@ class ConvertOptions:
     rig: str = "nuscenes"  # warp / render: target rig name or spec path
     scale: float = 1.0  # warp / render: target resolution factor
     recon_preset: str = "default"  # render: reconstruction budget preset
+    min_confidence: float = 0.0  # render: drop sample times where a camera's confidence is below
 
     def check(self) -> None:
         if self.mode not in MODES:
@@ -102,7 +103,7 @@ class ConvertOptions:
         key = {"writer": WRITER_FORMAT, "mode": self.mode, "keyframe_hz": self.keyframe_hz,
                "images": NativeImages(self.image_link).fingerprint() if self.mode == "native" else None,
                "target": None if self.mode == "native" else [self._rig_key(), self.scale],
-               "recon": self.recon_preset if self.mode == "render" else None,
+               "recon": [self.recon_preset, self.min_confidence] if self.mode == "render" else None,
                "provider": self._provider_key(),
                "calibration": str(Path(self.calibration_dir).resolve()) if self.calibration_dir else None,
                "require_cameras": self.require_cameras}
@@ -149,7 +150,8 @@ def convert_one_log(log_dir: Path, dataroot: Path, options: ConvertOptions) -> d
         scene = read_log(log_dir, options.calibration_dir, require_cameras=options.require_cameras)
         out_rig, images = image_source_for(scene, options.mode, Path(dataroot), image_link=options.image_link,
                                            rig=options.rig, scale=options.scale,
-                                           recon_preset=options.recon_preset)
+                                           recon_preset=options.recon_preset,
+                                           min_confidence=options.min_confidence)
         shard = write_log(scene, out_rig, images, Path(dataroot),
                           WriterOptions(keyframe_hz=options.keyframe_hz,
                                         show_progress=options.show_progress and options.workers == 1))

@@ -38,7 +38,7 @@ class QualityRecordingImages:
     """Wraps a :class:`RenderedImages` whose renderer keeps ``coverage[channel][timestamp_ns]``
     and records that confidence per written file (relative to the dataroot)."""
 
-    inner: RenderedImages
+    inner: RenderedImages  # or any source with the same methods and a ``render.coverage`` dict
     dataroot: Path
     by_file: dict[str, float] = field(default_factory=dict)
 
@@ -61,7 +61,7 @@ class QualityRecordingImages:
 
 def image_source_for(scene: SceneLog, mode: str, dataroot: Path, *, image_link: str = "copy",
                      rig: str = "nuscenes", scale: float = 1.0,
-                     recon_preset: str = "default") -> tuple[Rig, ImageSource]:
+                     recon_preset: str = "default", min_confidence: float = 0.0) -> tuple[Rig, ImageSource]:
     """Output rig and image source of one log for ``mode``."""
     if mode == "native":
         return output_rig_native(scene), NativeImages(image_link)
@@ -73,8 +73,11 @@ def image_source_for(scene: SceneLog, mode: str, dataroot: Path, *, image_link: 
     if mode == "render":
         from nuav2.recon import render_image_source
 
-        return out_rig, QualityRecordingImages(render_image_source(scene, out_rig, preset=recon_preset),
-                                               Path(dataroot))
+        # Checkpoints beside the dataroot let a killed render-mode conversion resume training.
+        ckpt = Path(dataroot) / ".recon" / scene.log_id
+        source = render_image_source(scene, out_rig, preset=recon_preset, min_confidence=min_confidence,
+                                     checkpoint_dir=ckpt)
+        return out_rig, QualityRecordingImages(source, Path(dataroot))
     raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
 
 

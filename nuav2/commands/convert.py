@@ -18,7 +18,7 @@ def _run(args: argparse.Namespace) -> int:
                              workers=args.workers, image_link=args.image_link,
                              calibration_dir=args.calibration, require_cameras=not args.allow_missing_cameras,
                              show_progress=not args.no_progress, rig=args.rig, scale=args.scale,
-                             recon_preset=args.recon_preset)
+                             recon_preset=args.recon_preset, min_confidence=args.min_confidence)
     try:
         report = convert_av2(args.src, args.out, options)
     except (ConvertError, AV2LogError) as e:
@@ -50,6 +50,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="warp/render: target rig, a name in rig_specs/ or a spec path (default: %(default)s)")
     p.add_argument("--scale", type=float, default=1.0,
                    help="warp/render: target image resolution factor, e.g. 0.25 (default: %(default)s)")
+    p.add_argument("--min-confidence", type=float, default=0.0,
+                   help="render: leave out sample times where a target camera's confidence is below this")
     p.add_argument("--recon-preset", default="default",
                    help="render: reconstruction budget preset (see docs/reconstruction.md)")
     p.add_argument("--version", default="v1.0-nuav2", help="table directory name (default: %(default)s)")
