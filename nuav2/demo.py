@@ -63,7 +63,8 @@ def run_demo(options: DemoOptions) -> dict:
     from converters.av2 import read_log
     from converters.synthetic import SynthConfig, generate_log, load_world, render_view
     from nuav2.convert import ConvertOptions, convert_av2
-    from nuav2.evaluate.against_world import key_camera_images, log_offsets, read_rgb, score_against_world
+    from nuav2.evaluate.against_world import key_camera_images, log_offsets, score_against_world
+    from nuav2.maptr.dataset import load_image_rgb
     from nuav2.nuscenes_db.validate import validate_database
 
     out = Path(options.out)
@@ -104,10 +105,10 @@ def run_demo(options: DemoOptions) -> dict:
         frames = scene.camera_frames.get(ch, [])
         if frames:
             f = min(frames, key=lambda fr: abs(fr.timestamp_ns - t_mid))
-            source.append(read_rgb(f.path))
+            source.append(load_image_rgb(str(f.path)))
     mid_paths = {Path(nusc.get_sample_data_path(tok)) for tok in mid["data"].values()}
     target = [im for im in images if im.path in mid_paths]
-    rendered = [read_rgb(im.path) for im in target]
+    rendered = [load_image_rgb(str(im.path)) for im in target]
     truth = [render_view(world, im.camera, im.city_T_cam, im.timestamp_ns) for im in target]
     png = out / "demo_side_by_side.png"
     side_by_side_png(png, source, rendered, truth, options.mode)

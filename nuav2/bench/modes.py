@@ -31,9 +31,10 @@ from tqdm import tqdm
 
 from nuav2.bench.paint_alignment import paint_offsets_px, painted_boundary_points
 from nuav2.evaluate.image_metrics import psnr, ssim
-from nuav2.geometry import F64, egoS_T_egoT_from_heights
+from nuav2.geometry import F64
 from nuav2.rig import CameraSpec, Rig, load_rig
 from nuav2.scene import SceneLog
+from nuav2.splat.render_target import target_city_T_cams
 from nuav2.warp.backward_warp import fill_uncovered
 from nuav2.warp.naive import closest_source_camera, resize_to_intrinsics
 from nuav2.warp.provider import WarpConfig, WarpRenderer, read_rgb
@@ -42,10 +43,9 @@ ImageFn = Callable[[CameraSpec, F64, int], tuple[np.ndarray, np.ndarray | None]]
 
 
 def target_poses(scene: SceneLog, rig: Rig, t: int) -> list[tuple[CameraSpec, F64]]:
-    """Each target camera's city pose at sweep time ``t`` (frame alignment, paper eq. 1-2)."""
-    city_T_egoT = scene.city_T_ego_at(int(t)) @ egoS_T_egoT_from_heights(scene.rig.origin_height_m,
-                                                                         rig.origin_height_m)
-    return [(cam, city_T_egoT @ cam.ego_T_cam) for cam in rig.cameras]
+    """Each target camera with its city pose at sweep time ``t`` (frame alignment, paper eq. 1-2)."""
+    city_T_cams = target_city_T_cams(scene, rig, t)
+    return [(cam, city_T_cams[cam.channel]) for cam in rig.cameras]
 
 
 def naive_image(scene: SceneLog, cam: CameraSpec, t: int) -> tuple[np.ndarray, np.ndarray]:

@@ -11,11 +11,11 @@ import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from nuav2.evaluate.image_metrics import psnr, ssim
 from nuav2.geometry import F64, T_from_quat_trans, translation_T
+from nuav2.maptr.dataset import load_image_rgb
 from nuav2.rig import CameraSpec
 
 
@@ -68,13 +68,6 @@ def key_camera_images(dataroot: Path, version: str, log_offsets: dict[str, np.nd
     return out
 
 
-def read_rgb(path: Path) -> np.ndarray:
-    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
-    if img is None:
-        raise FileNotFoundError(f"{path}: unreadable image")
-    return img[:, :, ::-1]
-
-
 def score_against_world(images: list[WrittenImage], world, every: int = 1) -> dict[str, CameraScores]:
     """Per-channel PSNR/SSIM of written images vs the world's render at the same pose and time."""
     from converters.synthetic import render_view
@@ -82,7 +75,7 @@ def score_against_world(images: list[WrittenImage], world, every: int = 1) -> di
     scores: dict[str, CameraScores] = {}
     for im in images[::every]:
         gt = render_view(world, im.camera, im.city_T_cam, im.timestamp_ns).astype(np.float32) / 255.0
-        got = read_rgb(im.path).astype(np.float32) / 255.0
+        got = load_image_rgb(str(im.path)).astype(np.float32) / 255.0
         s = scores.setdefault(im.channel, CameraScores())
         s.psnr_db.append(float(psnr(got, gt)))
         s.ssim.append(float(ssim(got, gt)))
