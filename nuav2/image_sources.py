@@ -90,9 +90,3 @@ def write_quality_table(dataroot: Path, version: str, per_file: dict[str, float]
     path = Path(dataroot) / version / QUALITY_FILE
     atomic_write_json(path, dict(sorted(out.items())), indent=1)
     return path
-
-
-def load_quality_table(dataroot: Path, version: str) -> dict[str, float]:
-    """The confidence sidecar ({sample_data token: confidence}); empty for native databases."""
-    path = Path(dataroot) / version / QUALITY_FILE
-    return json.loads(path.read_text()) if path.is_file() else {}

@@ -194,7 +194,7 @@ def render_provider(splat: SplatScene, *, min_confidence: float = 0.0, quality: 
                     quality_config: QualityConfig | None = None, at_sweeps: bool = False,
                     progress: bool = False) -> SplatImageSource:
     """A writer ``ImageSource`` (render mode) over ``splat``; its ``renderer`` is the plain RenderFn
-    and keeps per-image quality records for :func:`~nuav2.splat.render_target.write_quality_sidecar`."""
+    and keeps per-image quality records (``renderer.records``)."""
     if min_confidence > 0 and not quality:
         raise ValueError("min_confidence needs the quality gate (quality=True)")
     qcfg = quality_config or QualityConfig()

@@ -24,9 +24,7 @@ from nuav2.rig import load_rig
 from nuav2.splat.densify import DensifyConfig
 from nuav2.splat.init import InitConfig, initial_scene, source_views
 from nuav2.splat.render_target import (
-    merge_quality_sidecars,
     target_city_T_cams,
-    write_quality_sidecar,
 )
 from nuav2.splat.scene_model import SplatScene
 from nuav2.splat.train import CHECKPOINT_FILE, TrainConfig, Trainer
@@ -177,14 +175,6 @@ def test_provider_renders_records_quality_and_drops_low_confidence(trained, tiny
     off = translation_T(y=40.0) @ poses["CAM_FRONT"]
     source.render("CAM_FRONT", cam, off, t + 1)
     assert source.render.coverage["CAM_FRONT"][t + 1] < conf - 0.2
-    # Quality sidecars: per log, then merged and keyed by the writer's sample_data tokens.
-    path = write_quality_sidecar(tmp_path, "v1.0-test", tiny_scene.log_id, source.render)
-    merged = merge_quality_sidecars(tmp_path, "v1.0-test")
-    assert path.is_file() and merged.is_file()
-    import json
-
-    data = json.loads(merged.read_text())["by_sample_data_token"]
-    assert len(data) == 2 and all(len(tok) == 32 for tok in data)
     # min_confidence: a threshold above every camera's confidence drops every sample time.
     strict = render_provider(trained, min_confidence=1.01)
     times = tiny_scene.sweep_timestamps_ns[:2]

@@ -129,6 +129,13 @@ def test_convert_mode_warp_loads_in_the_devkit_and_validates(synth_log: Path, tm
         assert (sd["width"], sd["height"]) == (160, 90) and sd["filename"].endswith(".jpg")
         img = read_rgb(tmp_path / sd["filename"], out_rig.camera(ch))
         assert img.std() > 10  # a real picture, not a constant fill
+    # Every written camera image has its confidence, keyed by its sample_data token.
+    import json
+
+    quality = json.loads((tmp_path / VERSION / "nuav2_image_quality.json").read_text())
+    cam_tokens = {sd["token"] for sd in nusc.sample_data if sd["sensor_modality"] == "camera"}
+    assert set(quality) == cam_tokens
+    assert all(0.0 <= v <= 1.0 for v in quality.values())
     assert main(["validate", str(tmp_path), "--version", VERSION, "--quiet"]) == 0
 
 

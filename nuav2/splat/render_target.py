@@ -13,22 +13,17 @@ times where any camera's confidence is below ``min_confidence``.
 from __future__ import annotations
 
 import hashlib
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from nuav2.atomic import atomic_write_json
 from nuav2.geometry import F64, egoS_T_egoT_from_heights
 from nuav2.rig import CameraSpec, Rig
 from nuav2.scene import SceneLog
 from nuav2.splat.quality import ImageQuality, QualityConfig, SourceCoverage, image_quality
 from nuav2.splat.scene_model import SplatScene
-
-QUALITY_DIR = "render_quality"
-QUALITY_FILE = "nuav2_render_quality.json"
 
 
 def target_city_T_cams(scene: SceneLog, target_rig: Rig, timestamp_ns: int) -> dict[str, F64]:
@@ -45,7 +40,7 @@ def to_uint8(rgb: torch.Tensor) -> np.ndarray:
 
 
 def sample_data_key(channel: str, timestamp_ns: int) -> str:
-    """Record key; the writer derives sample_data tokens from the same ``channel@timestamp_ns``."""
+    """Key of one rendered image in ``SplatRenderer.records``: ``channel@timestamp_ns``."""
     return f"{channel}@{int(timestamp_ns)}"
 
 
@@ -161,37 +156,3 @@ class SplatImageSource:
 
     def fingerprint(self) -> str:
         return f"{self._images().fingerprint()}:minconf={self.min_confidence}"
-
-
-def write_quality_sidecar(dataroot: str | Path, version: str, log_id: str, renderer: SplatRenderer,
-                          dropped: list[dict] | None = None, min_confidence: float = 0.0) -> Path:
-    """Write one log's image qualities to ``<dataroot>/<version>/render_quality/<log_id>.json``."""
-    from nuav2.nuscenes_db.tokens import make_token
-
-    images = {}
-    for key, rec in sorted(renderer.records.items()):
-        images[key] = {**rec, "sample_data_token": make_token(log_id, "sample_data", key)}
-    path = Path(dataroot) / version / QUALITY_DIR / f"{log_id}.json"
-    path.parent.mkdir(parents=True, exist_ok=True)
-    atomic_write_json(path, {"log_id": log_id, "min_confidence": min_confidence, "images": images,
-                             "dropped": list(dropped or [])}, indent=1)
-    return path
-
-
-def merge_quality_sidecars(dataroot: str | Path, version: str) -> Path:
-    """Combine per-log sidecars into ``<version>/nuav2_render_quality.json`` keyed by sample_data token."""
-    root = Path(dataroot) / version
-    merged: dict = {"by_sample_data_token": {}, "dropped": {}}
-    for p in sorted((root / QUALITY_DIR).glob("*.json")):
-        try:
-            rec = json.loads(p.read_text())
-        except json.JSONDecodeError as e:
-            raise ValueError(f"{p}: not valid JSON ({e})") from e
-        for img in rec.get("images", {}).values():
-            merged["by_sample_data_token"][img["sample_data_token"]] = {
-                k: img[k] for k in ("channel", "timestamp_ns", "confidence", "solid_fraction", "alpha_mean")}
-        if rec.get("dropped"):
-            merged["dropped"][rec["log_id"]] = rec["dropped"]
-    out = root / QUALITY_FILE
-    atomic_write_json(out, merged, indent=1)
-    return out
