@@ -61,11 +61,11 @@ def side_by_side_png(path: Path, source: list[np.ndarray], rendered: list[np.nda
 def run_demo(options: DemoOptions) -> dict:
     """Run every stage and return a JSON-able summary (also written to OUT/demo_summary.json)."""
     from converters.av2 import read_log
-    from converters.synthetic import SynthConfig, generate_log, load_world, render_view
     from nuav2.convert import ConvertOptions, convert_av2
     from nuav2.evaluate.against_world import key_camera_images, log_offsets, score_against_world
     from nuav2.maptr.dataset import load_image_rgb
     from nuav2.nuscenes_db.validate import validate_database
+    from nuav2.synth import SynthConfig, generate_log, load_world, render_view
 
     out = Path(options.out)
     timings: dict[str, float] = {}

@@ -1,4 +1,4 @@
-"""converters.av2_map: the real AV2 vector map read through av2's API into nuav2's VectorMap."""
+"""converters.av2.map: the real AV2 vector map read through av2's API into nuav2's VectorMap."""
 
 from __future__ import annotations
 
@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from converters.av2_errors import AV2LogError
-from converters.av2_map import vector_map_from_dir
+from converters.av2.errors import AV2LogError
+from converters.av2.map import vector_map_from_dir
 
 
 @pytest.fixture(scope="module")

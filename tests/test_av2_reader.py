@@ -23,7 +23,7 @@ from av2.geometry.geometry import quat_to_mat
 from av2.utils.io import read_city_SE3_ego, read_lidar_sweep
 
 from converters.av2 import AV2LogError, find_logs, read_log, synced_sweeps
-from converters.av2_calibration import rig_from_calibration
+from converters.av2.calibration import rig_from_calibration
 from nuav2.geometry import quat_to_rot
 from nuav2.rig import load_rig
 

@@ -58,7 +58,7 @@ def poses_xy_city(av2_fixture_log: Path) -> np.ndarray:
 
 @pytest.fixture(scope="module")
 def written(av2_fixture_log: Path, poses_xy_city, tmp_path_factory):
-    from converters.av2_map import vector_map_from_dir
+    from converters.av2.map import vector_map_from_dir
 
     vm = vector_map_from_dir(av2_fixture_log / "map")
     map_xy = np.concatenate([np.asarray(a.boundary)[:, :2] for a in vm.drivable_areas.values()])

@@ -1,6 +1,6 @@
 """End to end on databases our converter wrote: info export, torch dataset, joint datasets, viz, bench.
 
-A synthetic AV2 log (converters.synthetic, 0.5 s, 7 ring cameras) converted with
+A synthetic AV2 log (nuav2.synth, 0.5 s, 7 ring cameras) converted with
 ``nuav2 convert av2 --mode native`` is the image-bearing dataroot; the real AV2 fixture log
 (no images) converted the same way is the second dataroot for joint training.
 """
@@ -59,8 +59,8 @@ MAPTR_CAM_KEYS = {
 
 @pytest.fixture(scope="module")
 def synthetic_db(tmp_path_factory) -> Path:
-    from converters.synthetic import SynthConfig, generate_log
     from nuav2.convert import ConvertOptions, convert_av2
+    from nuav2.synth import SynthConfig, generate_log
 
     base = tmp_path_factory.mktemp("maptr_synthetic")
     config = SynthConfig(seconds=0.5, lidar_azimuth_steps=32, n_parked=1, n_moving=0, n_pedestrians=0)
@@ -75,12 +75,12 @@ def nuscenes_rig_db(synthetic_db) -> Path:
     """The same synthetic log written in the nuScenes rig (six CAM_*, 16:9, render mode): the writer with
     the synthetic world's ground-truth renderer as its image source, keyframes at 5 Hz."""
     from converters.av2 import read_log
-    from converters.synthetic import load_world, render_view
     from nuav2.nuscenes_db import shards
     from nuav2.nuscenes_db.images import RenderedImages
     from nuav2.nuscenes_db.merge import merge_shards
     from nuav2.nuscenes_db.writer import WriterOptions, write_log
     from nuav2.rig import load_rig
+    from nuav2.synth import load_world, render_view
 
     log_dir = Path((synthetic_db / "source_log.txt").read_text())
     out = synthetic_db.parent / "nuscenes_rig"

@@ -16,7 +16,6 @@ import pytest
 import torch
 
 from converters.av2 import read_log
-from converters.synthetic import SynthConfig, generate_log, load_world, render_view
 from nuav2.bench.recon import heldout_psnr, target_rig_scores
 from nuav2.geometry import translation_T
 from nuav2.recon import ReconConfig, reconstruct, render_provider, split_views
@@ -28,6 +27,7 @@ from nuav2.splat.render_target import (
 )
 from nuav2.splat.scene_model import SplatScene
 from nuav2.splat.train import CHECKPOINT_FILE, TrainConfig, Trainer
+from nuav2.synth import SynthConfig, generate_log, load_world, render_view
 
 TINY_LOG = SynthConfig(seconds=0.5, image_scale=1 / 16, lidar_azimuth_steps=256, n_parked=2, n_moving=2,
                        n_pedestrians=0, map_margin_m=30.0)

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from converters.synthetic import SynthConfig, build_world, cast_sweep
-from converters.synthetic.road import ROAD_HALF
-from converters.synthetic.world import EGO_ORIGIN_HEIGHT_M
 from nuav2.geometry import transform_points
+from nuav2.synth import SynthConfig, build_world, cast_sweep
+from nuav2.synth.road import ROAD_HALF
+from nuav2.synth.world import EGO_ORIGIN_HEIGHT_M
 
 
 @pytest.fixture(scope="module")

@@ -17,10 +17,10 @@ from av2.structures.cuboid import Cuboid
 from av2.structures.sweep import Sweep
 from av2.utils.io import read_img
 
-from converters.synthetic import SynthConfig, generate_log, load_world, render_view
-from converters.synthetic.world import EGO_ORIGIN_HEIGHT_M, WORLD_FILE, clear_world_cache
 from nuav2.cli import main as cli_main
 from nuav2.geometry import T_from_quat_trans
+from nuav2.synth import SynthConfig, generate_log, load_world, render_view
+from nuav2.synth.world import EGO_ORIGIN_HEIGHT_M, WORLD_FILE, clear_world_cache
 
 CONFIG = SynthConfig(seconds=1.0)
 SEED = 7

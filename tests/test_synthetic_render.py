@@ -6,12 +6,12 @@ import cv2
 import numpy as np
 import pytest
 
-from converters.synthetic import SynthConfig, build_world, render_view
-from converters.synthetic.boxes import BoxSet, intersect_rays
-from converters.synthetic.render import EGO_BODY, NEAR_Z, SUN_DIR
-from converters.synthetic.road import ROAD_HALF
 from nuav2.geometry import T_inverse, make_T, transform_points
 from nuav2.rig import CameraSpec, load_rig
+from nuav2.synth import SynthConfig, build_world, render_view
+from nuav2.synth.boxes import BoxSet, intersect_rays
+from nuav2.synth.render import EGO_BODY, NEAR_Z, SUN_DIR
+from nuav2.synth.road import ROAD_HALF
 
 EMPTY = SynthConfig(seconds=0.5, n_parked=0, n_moving=0, n_pedestrians=0)
 BUSY = SynthConfig(seconds=0.5)

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from shapely.geometry import LineString
 
-from converters.synthetic import SynthConfig, build_world, load_world
-from converters.synthetic.road import (
+from nuav2.synth import SynthConfig, build_world, load_world
+from nuav2.synth.road import (
     DASH_PERIOD,
     DRIVABLE_HALF,
     INTER_HALF,
@@ -17,9 +17,9 @@ from converters.synthetic.road import (
     arm_length_for,
     build_road_layout,
 )
-from converters.synthetic.texture import MAT, MATERIALS, draw_layer
-from converters.synthetic.timeline import CAMERA_PHASE_NS, make_timeline
-from converters.synthetic.world import EGO_ORIGIN_HEIGHT_M, WORLD_FILE, clear_world_cache
+from nuav2.synth.texture import MAT, MATERIALS, draw_layer
+from nuav2.synth.timeline import CAMERA_PHASE_NS, make_timeline
+from nuav2.synth.world import EGO_ORIGIN_HEIGHT_M, WORLD_FILE, clear_world_cache
 
 SMALL = SynthConfig(seconds=0.5, lidar_azimuth_steps=64)
 
@@ -139,7 +139,7 @@ def test_texture_mip_levels_stay_centred_on_paint():
     coordinate convention), else distant paint would render shifted."""
     layout = build_road_layout(arm_length_for(40.0))
     layer = draw_layer(layout, 10.0, -10.0, 40.0, 20.0, 0.05, salt=3)
-    from converters.synthetic.texture import GroundTexture
+    from nuav2.synth.texture import GroundTexture
 
     tex = GroundTexture((layer,))
     ys = np.linspace(-ROAD_HALF - 0.6, -ROAD_HALF + 0.6, 241)  # across the solid white edge at y = -7

@@ -26,7 +26,7 @@ RIG_SCALE = 0.12  # nuScenes 1600x900 -> 192x108, about the angular resolution o
 
 @pytest.fixture(scope="module")
 def synth_log(tmp_path_factory) -> Path:
-    from converters.synthetic import SynthConfig, generate_log
+    from nuav2.synth import SynthConfig, generate_log
 
     return generate_log(tmp_path_factory.mktemp("warp_av2"), seed=5, config=SynthConfig(seconds=1.0))
 
@@ -34,7 +34,7 @@ def synth_log(tmp_path_factory) -> Path:
 @pytest.fixture(scope="module")
 def synth(synth_log: Path):
     from converters.av2 import read_log
-    from converters.synthetic import load_world
+    from nuav2.synth import load_world
 
     return read_log(synth_log), load_world(synth_log)
 
@@ -47,7 +47,7 @@ def rig():
 @pytest.fixture(scope="module")
 def renders(synth, rig):
     """Per (channel, time): warp, ground truth, naive baseline, and the target pose (two sample times)."""
-    from converters.synthetic import render_view
+    from nuav2.synth import render_view
 
     scene, world = synth
     renderer = WarpRenderer(scene)
@@ -88,7 +88,7 @@ def test_warped_images_are_uint8_finite_and_deterministic(synth, rig, renders):
 
 
 def test_lane_paint_lands_on_the_map(synth):
-    from converters.synthetic import render_view
+    from nuav2.synth import render_view
 
     scene, world = synth
     rig = load_rig("nuscenes", scale=0.25)  # the paint detector needs lines a few pixels wide
@@ -170,7 +170,7 @@ def test_missing_source_image_names_the_file(synth, rig):
 
 def test_without_lidar_or_boxes_the_ground_still_warps(synth, rig):
     scene, world = synth
-    from converters.synthetic import render_view
+    from nuav2.synth import render_view
 
     bare = dataclasses.replace(scene, load_lidar=None, annotations=scene.annotations.empty())
     cam = rig.camera("CAM_FRONT")

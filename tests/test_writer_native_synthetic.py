@@ -23,7 +23,7 @@ RING = ["ring_front_center", "ring_front_left", "ring_front_right", "ring_side_l
 @pytest.fixture(scope="module")
 def synthetic(tmp_path_factory):
     """(log dir, world, dataroot at --keyframe-hz 2 with copied images)."""
-    from converters.synthetic import SynthConfig, generate_log, load_world
+    from nuav2.synth import SynthConfig, generate_log, load_world
 
     root = tmp_path_factory.mktemp("synthetic_av2")
     log_dir = generate_log(root, seed=3, config=SynthConfig(seconds=2.0))

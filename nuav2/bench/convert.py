@@ -41,7 +41,7 @@ def bench_convert(seconds: float = 3.0, image_scale: float = 0.25, image_link: s
                   keyframe_hz: float | None = None, repeats: int = 2, seed: int = 0,
                   workdir: Path | None = None) -> dict:
     """Generate one synthetic log, then time the av2 read and the native conversion of it."""
-    from converters.synthetic import SynthConfig, generate_log
+    from nuav2.synth import SynthConfig, generate_log
 
     tmp = Path(tempfile.mkdtemp(prefix="nuav2-bench-convert-", dir=workdir))
     try:

@@ -92,8 +92,8 @@ def synthetic_dataroot(
     version: str = "v1.0-nuav2",
 ) -> Iterator[Path]:
     """A temporary nuAV2 dataroot: one synthetic AV2 log converted in native mode (removed afterwards)."""
-    from converters.synthetic import SynthConfig, generate_log
     from nuav2.convert import ConvertOptions, convert_av2
+    from nuav2.synth import SynthConfig, generate_log
 
     with tempfile.TemporaryDirectory(prefix="nuav2_bench_loader_") as tmp:
         log_dir = generate_log(

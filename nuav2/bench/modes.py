@@ -113,7 +113,7 @@ def bench_modes(seed: int = 0, config=None, rig_name: str = "nuscenes", scale: f
                 progress: bool = True) -> dict:
     """Run every mode on the synthetic log of ``seed`` (default scene) and return the comparison as a dict."""
     from converters.av2 import read_log
-    from converters.synthetic import SynthConfig, generate_log, load_world, render_view
+    from nuav2.synth import SynthConfig, generate_log, load_world, render_view
 
     config = config or SynthConfig()
     with tempfile.TemporaryDirectory(prefix="nuav2_bench_modes_") as tmp:

@@ -41,9 +41,9 @@ def target_rig_scores(splat: SplatScene, scene: SceneLog, world, *, rig: str = D
     """PSNR/SSIM per target camera vs the world's ground truth, and lane-paint alignment."""
     import torch
 
-    from converters.synthetic import render_view
     from nuav2.bench.paint_alignment import paint_offsets_px, painted_boundary_points
     from nuav2.evaluate.image_metrics import psnr, ssim
+    from nuav2.synth import render_view
 
     target = load_rig(rig, scale=scale)
     per_cam: dict[str, dict[str, list[float]]] = {c.channel: {"psnr": [], "ssim": []} for c in target.cameras}
@@ -148,8 +148,8 @@ def bench_recon(log_dir: str | Path | None = None, *, seed: int = 0, budgets: li
                 holdout_every: int = 5, n_times: int = 6, progress: bool = False) -> dict:
     """Speed-against-error table on a synthetic log (generated with defaults if ``log_dir`` is None)."""
     from converters.av2 import read_log
-    from converters.synthetic import generate_log, load_world
     from nuav2.recon import reconstruct
+    from nuav2.synth import generate_log, load_world
 
     with tempfile.TemporaryDirectory(prefix="nuav2-bench-recon-") as tmp:
         if log_dir is None:

@@ -32,8 +32,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from converters.synthetic import SynthConfig
     from nuav2.bench.modes import bench_modes
+    from nuav2.synth import SynthConfig
 
     config = SynthConfig() if args.seconds is None else SynthConfig(seconds=args.seconds)
     result = bench_modes(seed=args.seed, config=config, rig_name=args.rig, scale=args.scale,

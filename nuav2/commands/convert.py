@@ -11,7 +11,7 @@ from nuav2.cli import group
 
 
 def _run(args: argparse.Namespace) -> int:
-    from converters.av2_errors import AV2LogError
+    from converters.av2.errors import AV2LogError
     from nuav2.convert import REPORT_FILE, ConvertError, ConvertOptions, convert_av2
 
     options = ConvertOptions(mode=args.mode, version=args.version, keyframe_hz=args.keyframe_hz,

@@ -46,7 +46,7 @@ def summarize_log(log_dir: Path, calibration_dir: Path | None, require_cameras: 
 
 
 def _run(args: argparse.Namespace) -> int:
-    from converters.av2_errors import AV2LogError
+    from converters.av2.errors import AV2LogError
 
     try:
         summary = summarize_log(args.log_dir, args.calibration_dir, not args.allow_missing_cameras,

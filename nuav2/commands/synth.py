@@ -15,7 +15,7 @@ def _dir_size(path: Path) -> tuple[int, int]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from converters.synthetic import SynthConfig, generate_log
+    from nuav2.synth import SynthConfig, generate_log
 
     try:
         overrides = {"seconds": args.seconds, "image_scale": args.scale, "include_stereo": args.stereo}

@@ -70,7 +70,7 @@ def key_camera_images(dataroot: Path, version: str, log_offsets: dict[str, np.nd
 
 def score_against_world(images: list[WrittenImage], world, every: int = 1) -> dict[str, CameraScores]:
     """Per-channel PSNR/SSIM of written images vs the world's render at the same pose and time."""
-    from converters.synthetic import render_view
+    from nuav2.synth import render_view
 
     scores: dict[str, CameraScores] = {}
     for im in images[::every]:

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from converters.av2_errors import AV2LogError
+from converters.av2.errors import AV2LogError
 from nuav2.scene import GroundHeightRaster
 
 log = logging.getLogger(__name__)

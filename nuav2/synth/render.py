@@ -19,11 +19,11 @@ from functools import lru_cache
 import numba
 import numpy as np
 
-from converters.synthetic.boxes import KIND_BUILDING, KIND_PEDESTRIAN, KIND_VEHICLE, BoxSet, intersect_rays
-from converters.synthetic.texture import sample_texture_point
-from converters.synthetic.world import SyntheticWorld
 from nuav2.geometry import F64, T_inverse
 from nuav2.rig import CameraSpec
+from nuav2.synth.boxes import KIND_BUILDING, KIND_PEDESTRIAN, KIND_VEHICLE, BoxSet, intersect_rays
+from nuav2.synth.texture import sample_texture_point
+from nuav2.synth.world import SyntheticWorld
 
 NEAR_Z = 0.05
 SUN_DIR = np.array([0.35, -0.45, 0.82]) / np.linalg.norm([0.35, -0.45, 0.82])

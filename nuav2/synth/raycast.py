@@ -14,9 +14,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from converters.synthetic.boxes import face_normals_local, intersect_rays
-from converters.synthetic.world import LIDARS, SyntheticWorld
 from nuav2.geometry import F64, T_inverse, transform_points
+from nuav2.synth.boxes import face_normals_local, intersect_rays
+from nuav2.synth.world import LIDARS, SyntheticWorld
 
 # VLP-32C elevation angles (degrees), sorted ascending; laser_number = index (+32 for down_lidar).
 VLP32C_ELEVATION_DEG = np.array([

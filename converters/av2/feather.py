@@ -9,7 +9,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.feather as feather
 
-from converters.av2_errors import AV2LogError
+from converters.av2.errors import AV2LogError
 
 
 def read_columns(path: Path, columns: Sequence[str]) -> dict[str, np.ndarray]:

@@ -19,9 +19,11 @@ from pathlib import Path
 import numpy as np
 from shapely.geometry import Polygon
 
-from converters.synthetic.boxes import KIND_BUILDING, KIND_PEDESTRIAN, KIND_VEHICLE, BoxSet
-from converters.synthetic.config import SynthConfig
-from converters.synthetic.road import (
+from nuav2.geometry import F64, make_T, translation_T
+from nuav2.rig import Rig, load_rig
+from nuav2.synth.boxes import KIND_BUILDING, KIND_PEDESTRIAN, KIND_VEHICLE, BoxSet
+from nuav2.synth.config import SynthConfig
+from nuav2.synth.road import (
     DRIVABLE_HALF,
     INTER_HALF,
     LANE_W,
@@ -31,10 +33,8 @@ from converters.synthetic.road import (
     build_road_layout,
     rot90,
 )
-from converters.synthetic.texture import GroundTexture, build_ground_texture
-from converters.synthetic.timeline import Timeline, make_timeline
-from nuav2.geometry import F64, make_T, translation_T
-from nuav2.rig import Rig, load_rig
+from nuav2.synth.texture import GroundTexture, build_ground_texture
+from nuav2.synth.timeline import Timeline, make_timeline
 
 WORLD_FILE = "synthetic_world.json"
 WORLD_FORMAT = "nuav2-synthetic/1"

@@ -6,7 +6,7 @@ import logging
 import re
 from pathlib import Path
 
-from converters.av2_errors import AV2LogError
+from converters.av2.errors import AV2LogError
 from nuav2.scene import CameraFrame
 
 log = logging.getLogger(__name__)

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from converters.av2_errors import AV2LogError
-from converters.av2_poses import POSE_FILE
+from converters.av2.errors import AV2LogError
+from converters.av2.poses import POSE_FILE
 
 SPLITS = ("train", "val", "test")
 

@@ -8,8 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
-from converters.av2_errors import AV2LogError
-from converters.av2_feather import read_columns
+from converters.av2.errors import AV2LogError
+from converters.av2.feather import read_columns
 from nuav2.scene import LidarPoints, LidarSweepRef
 
 log = logging.getLogger(__name__)

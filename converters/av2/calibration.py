@@ -13,8 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from converters.av2_errors import AV2LogError
-from converters.av2_feather import read_columns, require_finite
+from converters.av2.errors import AV2LogError
+from converters.av2.feather import read_columns, require_finite
 from nuav2.geometry import T_to_quat_trans
 from nuav2.rig import CameraSpec, Rig, RigSpecError, load_rig, rig_from_dict
 

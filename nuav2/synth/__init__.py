@@ -2,7 +2,7 @@
 
 Public API (stable; reconstruction and warp code call it)::
 
-    from converters.synthetic import SynthConfig, generate_log, load_world, render_view
+    from nuav2.synth import SynthConfig, generate_log, load_world, render_view
 
     log_dir = generate_log(out_dir, seed=0)             # out_dir/train/<log_id>/ in AV2 layout
     world = load_world(log_dir)                         # the world behind that log
@@ -10,11 +10,11 @@ Public API (stable; reconstruction and warp code call it)::
     world.city_T_ego_at(ts); world.actor_poses_at(ts)   # ground-truth poses
 """
 
-from converters.synthetic.config import SynthConfig
-from converters.synthetic.log_writer import generate_log
-from converters.synthetic.raycast import LidarReturns, cast_sweep
-from converters.synthetic.render import render_view
-from converters.synthetic.world import ActorPoses, SyntheticWorld, build_world, load_world
+from nuav2.synth.config import SynthConfig
+from nuav2.synth.log_writer import generate_log
+from nuav2.synth.raycast import LidarReturns, cast_sweep
+from nuav2.synth.render import render_view
+from nuav2.synth.world import ActorPoses, SyntheticWorld, build_world, load_world
 
 __all__ = ["ActorPoses", "LidarReturns", "SynthConfig", "SyntheticWorld", "build_world", "cast_sweep",
            "generate_log", "load_world", "render_view"]

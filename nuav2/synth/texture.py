@@ -17,8 +17,8 @@ import cv2
 import numba
 import numpy as np
 
-from converters.synthetic.road import DASH_LEN, DASH_PERIOD, DRIVABLE_HALF, SIDEWALK_W, RoadLayout
 from nuav2.geometry import F64
+from nuav2.synth.road import DASH_LEN, DASH_PERIOD, DRIVABLE_HALF, SIDEWALK_W, RoadLayout
 
 SHIFT = 4  # cv2 sub-pixel drawing bits
 GRASS = np.array([84, 110, 56], np.float32)

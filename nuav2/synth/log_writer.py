@@ -20,13 +20,13 @@ import pyarrow as pa
 import pyarrow.feather as feather
 from tqdm import tqdm
 
-from converters.synthetic.config import SynthConfig
-from converters.synthetic.map_json import write_map_dir
-from converters.synthetic.raycast import cast_sweep
-from converters.synthetic.render import render_view
-from converters.synthetic.world import LIDARS, WORLD_FILE, SyntheticWorld, build_world
 from nuav2.atomic import atomic_directory
 from nuav2.geometry import T_inverse, T_to_quat_trans
+from nuav2.synth.config import SynthConfig
+from nuav2.synth.map_json import write_map_dir
+from nuav2.synth.raycast import cast_sweep
+from nuav2.synth.render import render_view
+from nuav2.synth.world import LIDARS, WORLD_FILE, SyntheticWorld, build_world
 
 SPLITS = ("train", "val", "test")
 _POSE_COLS = ("qw", "qx", "qy", "qz", "tx_m", "ty_m", "tz_m")

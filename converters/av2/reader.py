@@ -1,8 +1,8 @@
 """Argoverse 2 sensor log -> ``SceneLog``: the AV2 reader.
 
-Each part of a log is read by its own small module (``av2_poses``, ``av2_lidar``,
-``av2_cameras``, ``av2_annotations``, ``av2_calibration``, ``av2_map_files``; the vector map by
-``av2_map``). This module checks that the parts fit together in time and assembles them.
+Each part of a log is read by its own small module of this package (``poses``, ``lidar``,
+``cameras``, ``annotations``, ``calibration``, ``map_files``; the vector map by ``map``).
+This module checks that the parts fit together in time and assembles them.
 Every problem with the input is an :class:`AV2LogError` naming the file, or a logged skip.
 """
 
@@ -13,18 +13,16 @@ from pathlib import Path
 
 import numpy as np
 
-from converters.av2_annotations import read_annotations
-from converters.av2_calibration import rig_from_calibration
-from converters.av2_cameras import list_camera_frames
-from converters.av2_errors import AV2LogError
-from converters.av2_lidar import list_sweeps, load_av2_sweep
-from converters.av2_logs import find_logs, split_of
-from converters.av2_map_files import city_from_map_dir, read_ground_height
-from converters.av2_poses import POSE_FILE, read_pose_table
-from converters.av2_sync import DEFAULT_CAMERA_TOLERANCE_NS, SyncedSweep, synced_sweeps
+from converters.av2.annotations import read_annotations
+from converters.av2.calibration import rig_from_calibration
+from converters.av2.cameras import list_camera_frames
+from converters.av2.errors import AV2LogError
+from converters.av2.lidar import list_sweeps, load_av2_sweep
+from converters.av2.logs import split_of
+from converters.av2.map_files import city_from_map_dir, read_ground_height
+from converters.av2.poses import POSE_FILE, read_pose_table
+from converters.av2.sync import DEFAULT_CAMERA_TOLERANCE_NS, synced_sweeps
 from nuav2.scene import SceneLog, VectorMap
-
-__all__ = ["AV2LogError", "SyncedSweep", "find_logs", "read_log", "synced_sweeps"]
 
 log = logging.getLogger(__name__)
 
@@ -40,7 +38,7 @@ def _within_poses(items: list, pose_ts: np.ndarray, what: str, where: Path) -> l
 
 def _read_vector_map(map_dir: Path) -> VectorMap:
     # Imported here so the rest of the reader (find_logs, inspect) does not depend on the map code.
-    from converters.av2_map import vector_map_from_dir
+    from converters.av2.map import vector_map_from_dir
 
     return vector_map_from_dir(map_dir)
 

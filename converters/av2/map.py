@@ -13,8 +13,8 @@ from pathlib import Path
 import numpy as np
 from av2.map.map_api import ArgoverseStaticMap
 
-from converters.av2_errors import AV2LogError
-from converters.av2_map_files import city_from_map_dir
+from converters.av2.errors import AV2LogError
+from converters.av2.map_files import city_from_map_dir
 from nuav2.scene import DrivableArea, LaneSegment, PedCrossing, VectorMap
 
 

@@ -16,8 +16,8 @@ import cv2
 import numpy as np
 from shapely.geometry import Polygon
 
-from converters.synthetic.world import SyntheticWorld
 from nuav2.atomic import atomic_write_bytes
+from nuav2.synth.world import SyntheticWorld
 
 GROUND_RES_M = 0.3
 GROUND_ROI_MARGIN_M = 5.0
