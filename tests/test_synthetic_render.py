@@ -254,3 +254,26 @@ def test_ego_mask_is_drawn_with_zero_depth(busy_world):
     assert np.all(depth[mask] == 0.0) and np.all(depth[~mask] > 0.0)
     body = img[mask].astype(float)
     assert np.all(np.abs(body - EGO_BODY).max(axis=1) <= 0.2 * EGO_BODY.max() + 1)
+
+
+def test_region_labels_agree_with_depth_and_actor_boxes(busy_world):
+    """Labels say sky exactly where depth is inf, ego exactly under the mask, ground where the
+    depth equals the flat ground's, and objects on the pixels of annotated actors."""
+    from nuav2.synth.render import LABEL_EGO, LABEL_GROUND, LABEL_OBJECT, LABEL_SKY, LABEL_STATIC
+
+    world = busy_world
+    cam = load_rig("av2", scale=0.125).camera("ring_front_center")
+    ts = int(world.timeline.images_ns["ring_front_center"][0])
+    city_T_cam = world.city_T_ego_at(ts) @ cam.ego_T_cam
+    img, depth, labels = render_view(world, cam, city_T_cam, ts, with_depth=True, with_labels=True)
+    np.testing.assert_array_equal(img, render_view(world, cam, city_T_cam, ts))
+    assert labels.shape == depth.shape and labels.dtype == np.uint8
+    np.testing.assert_array_equal(labels == LABEL_SKY, np.isinf(depth))
+    np.testing.assert_array_equal(labels == LABEL_EGO, cam.ego_mask())
+    ground = labels == LABEL_GROUND
+    assert ground.mean() > 0.2
+    gd = ground_depth(cam, city_T_cam, world)
+    np.testing.assert_allclose(depth[ground], gd[ground], rtol=1e-4)
+    hit = (labels == LABEL_OBJECT) | (labels == LABEL_STATIC)
+    assert np.all(depth[hit] < gd[hit] * (1 + 1e-5) + 1e-5)
+    assert (labels == LABEL_OBJECT).any() or (labels == LABEL_STATIC).any()

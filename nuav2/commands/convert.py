@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 from nuav2.cli import group
+from nuav2.image_sources import MODES
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -42,7 +43,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                                    "written), 2 when nothing could be converted.")
     p.add_argument("src", type=Path, help="AV2 split dir, sensor/ dir, dataset root, or one log dir")
     p.add_argument("out", type=Path, help="output nuScenes dataroot")
-    p.add_argument("--mode", choices=["native", "warp", "render"], default="native",
+    p.add_argument("--mode", choices=MODES, default="native",
                    help="native: keep AV2's own cameras and images (the paper's AV2 baseline); "
                         "warp: fast depth-warp of the source images into the target rig; "
                         "render: Gaussian-splat reconstruction rendered in the target rig (nuAV2)")

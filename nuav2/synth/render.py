@@ -9,7 +9,8 @@ this resolves every pixel to its nearest surface. A box crossing the near plane 
 every pixel and a ray counts only hits beyond ``NEAR_Z``, so near-plane clipping is exact.
 Pixels under the camera's ego-mask polygons show the ego body, as on the real AV2 rig.
 
-Depth is the camera z-depth in metres (float32): inf for sky, 0 under the ego mask.
+Depth is the camera z-depth in metres (float32): inf for sky, 0 under the ego mask. Labels
+(uint8, ``LABEL_*``) say what each pixel shows, so image quality can be scored per region.
 """
 
 from __future__ import annotations
@@ -26,6 +27,10 @@ from nuav2.synth.texture import sample_texture_point
 from nuav2.synth.world import SyntheticWorld
 
 NEAR_Z = 0.05
+# Region labels of render_view(with_labels=True): what a pixel shows.
+LABEL_SKY, LABEL_GROUND, LABEL_OBJECT, LABEL_STATIC, LABEL_EGO = 0, 1, 2, 3, 4
+REGION_LABELS = {"sky": LABEL_SKY, "ground": LABEL_GROUND, "objects": LABEL_OBJECT, "static": LABEL_STATIC,
+                 "ego": LABEL_EGO}
 SUN_DIR = np.array([0.35, -0.45, 0.82]) / np.linalg.norm([0.35, -0.45, 0.82])
 SKY_TOP_SIN = float(np.sin(np.pi / 3))  # the sky gradient saturates at 60 degrees elevation
 SKY_HORIZON = np.array([205.0, 218.0, 232.0])
@@ -119,7 +124,7 @@ def _box_color(kind, color, axis, u, half_u, v, height):
 
 @numba.njit(cache=True)
 def _shade_kernel(origin, dirs, hit_t, hit_box, hit_face, centers, rots, halves, colors, kinds,
-                  tex_data, tex_box, tex_levels, tex_meta, focal, rgb, depth):
+                  tex_data, tex_box, tex_levels, tex_meta, focal, rgb, depth, labels):
     """Per pixel: the nearest of box hit / ground hit / sky, its colour and its z-depth."""
     for j in range(dirs.shape[0]):
         dx, dy, dz = dirs[j, 0], dirs[j, 1], dirs[j, 2]
@@ -147,24 +152,29 @@ def _shade_kernel(origin, dirs, hit_t, hit_box, hit_face, centers, rots, halves,
             shade = 0.45 + 0.55 * max(n_dot_sun, 0.0)
             rgb[j, 0], rgb[j, 1], rgb[j, 2] = r * shade, g * shade, b * shade
             depth[j] = t_box
+            labels[j] = LABEL_STATIC if kinds[i] == KIND_BUILDING else LABEL_OBJECT
         elif t_ground < np.inf:
             norm = np.sqrt(dx * dx + dy * dy + dz * dz)
             footprint = t_ground / focal / np.sqrt(max(abs(dz) / norm, 1e-6))
             sample_texture_point(tex_data, tex_box, tex_levels, tex_meta, origin[0] + t_ground * dx,
                                  origin[1] + t_ground * dy, footprint, rgb, j)
             depth[j] = t_ground
+            labels[j] = LABEL_GROUND
         else:
             elev = dz / np.sqrt(dx * dx + dy * dy + dz * dz)
             s = min(max(elev / SKY_TOP_SIN, 0.0), 1.0) ** 0.7
             for c in range(3):
                 rgb[j, c] = SKY_HORIZON[c] + (SKY_ZENITH[c] - SKY_HORIZON[c]) * s
             depth[j] = np.inf
+            labels[j] = LABEL_SKY
 
 
 def render_view(world: SyntheticWorld, cam: CameraSpec, city_T_cam: F64, timestamp_ns: int, *,
-                with_depth: bool = False):
+                with_depth: bool = False, with_labels: bool = False):
     """RGB uint8 (H, W, 3) of ``world`` seen by ``cam`` at ``city_T_cam`` (actors at ``timestamp_ns``);
-    with ``with_depth`` also the float32 (H, W) camera z-depth (inf: sky, 0: ego body)."""
+    with ``with_depth`` also the float32 (H, W) camera z-depth (inf: sky, 0: ego body), with
+    ``with_labels`` also the uint8 (H, W) region labels (``LABEL_*``). Returns the image alone, or a
+    tuple ``(img, depth)``, ``(img, labels)`` or ``(img, depth, labels)``."""
     city_T_cam = np.asarray(city_T_cam, np.float64)
     if city_T_cam.shape != (4, 4) or not np.all(np.isfinite(city_T_cam)):
         raise ValueError(f"city_T_cam must be a finite 4x4 matrix, got shape {city_T_cam.shape}")
@@ -180,16 +190,19 @@ def render_view(world: SyntheticWorld, cam: CameraSpec, city_T_cam: F64, timesta
     hits = intersect_rays(origin, dirs, boxes, t_min=NEAR_Z, rects=rects, image_width=w, t_lower=z_near)
     rgb = np.empty((w * h, 3), np.float32)
     depth = np.empty(w * h, np.float32)
+    labels = np.empty(w * h, np.uint8)
     _shade_kernel(origin, dirs, hits.t, hits.box, hits.face, np.ascontiguousarray(boxes.center),
                   np.ascontiguousarray(boxes.rotations), np.ascontiguousarray(boxes.size / 2),
                   np.ascontiguousarray(boxes.color, np.float64), np.ascontiguousarray(boxes.kind, np.int64),
-                  *world.texture.packed.arrays(), float(np.sqrt(K[0, 0] * K[1, 1])), rgb, depth)
+                  *world.texture.packed.arrays(), float(np.sqrt(K[0, 0] * K[1, 1])), rgb, depth, labels)
     img = np.clip(rgb + 0.5, 0, 255).astype(np.uint8).reshape(h, w, 3)
-    depth = depth.reshape(h, w)
+    depth, labels = depth.reshape(h, w), labels.reshape(h, w)
     if cam.ego_mask_polygons:
         mask = cam.ego_mask()
         rows = np.arange(h, dtype=np.float64)[:, None] / max(h - 1, 1)
         body = EGO_BODY[None, None, :] * (0.8 + 0.4 * rows[..., None])
         img[mask] = np.broadcast_to(body, (h, w, 3))[mask].astype(np.uint8)
         depth[mask] = 0.0
-    return (img, depth) if with_depth else img
+        labels[mask] = LABEL_EGO
+    out = (img,) + ((depth,) if with_depth else ()) + ((labels,) if with_labels else ())
+    return out if len(out) > 1 else img
