@@ -10,23 +10,19 @@ import pytest
 
 from nuav2.geometry import T_from_quat_trans, T_inverse, make_T, translation_T
 from nuav2.rig import CameraSpec
-from nuav2.splat.init import (
-    GroundSurface,
-    InitConfig,
-    SourceView,
+from nuav2.splat.actors import build_tracks, is_moving, track_motion
+from nuav2.splat.colouring import colour_seeds
+from nuav2.splat.ground import GroundSurface, ground_seeds
+from nuav2.splat.init import InitConfig
+from nuav2.splat.lidar_seeds import (
     aggregate_lidar,
-    bilinear,
     box_surface_points,
-    build_tracks,
-    colour_seeds,
-    ground_seeds,
-    is_moving,
     knn_scales,
     points_in_box,
-    track_motion,
     voxel_downsample,
 )
 from nuav2.splat.scene_model import TrackPoses, scene_frame_for
+from nuav2.splat.views import SourceView, bilinear
 
 CAM_R_FORWARD_X = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
 

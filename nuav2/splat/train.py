@@ -26,9 +26,9 @@ from nuav2.atomic import atomic_write_bytes
 from nuav2.geometry import F64, T_inverse
 from nuav2.scene import SceneLog
 from nuav2.splat.densify import DensifyConfig, DensifyStrategy
-from nuav2.splat.init import SourceView, project
 from nuav2.splat.losses import depth_loss, photometric_loss, psnr, sky_loss
 from nuav2.splat.scene_model import GaussianSet, SplatScene
+from nuav2.splat.views import SourceView, project
 
 log = logging.getLogger(__name__)
 

@@ -1,0 +1,85 @@
+"""Colouring seeds by projection: each seed takes the colour of the source image that sees it from
+closest, behind a coarse z-buffer so a point hidden by a car does not take the car's colour."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import cv2
+import numpy as np
+from tqdm import tqdm
+
+from nuav2.geometry import F64, T_inverse
+from nuav2.splat.scene_model import TrackPoses
+from nuav2.splat.sky_init import sky_mask
+from nuav2.splat.views import Projection, SourceView, bilinear, project
+
+if TYPE_CHECKING:
+    from nuav2.splat.init import InitConfig
+
+
+def zbuffer_visible(proj: Projection, width: int, height: int, cfg: InitConfig) -> np.ndarray:
+    """Which projected points are the nearest surface in their (dilated) z-buffer cell."""
+    c = max(1, cfg.zbuf_cell_px)
+    gw, gh = (width + c - 1) // c, (height + c - 1) // c
+    cell = (np.clip(np.round(proj.v).astype(np.int64) // c, 0, gh - 1) * gw
+            + np.clip(np.round(proj.u).astype(np.int64) // c, 0, gw - 1))
+    zmin = np.full(gw * gh, np.inf, np.float32)
+    np.minimum.at(zmin, cell, proj.z.astype(np.float32))
+    zmin = cv2.erode(zmin.reshape(gh, gw), np.ones((3, 3), np.uint8), borderType=cv2.BORDER_REPLICATE).ravel()
+    return proj.z <= zmin[cell] * (1 + cfg.zbuf_rel_tol) + cfg.zbuf_abs_tol_m
+
+
+@dataclass
+class SeedColours:
+    """Per seed: RGB in [0,1] from its closest visible view (NaN if unseen), and the view count."""
+
+    rgb: np.ndarray
+    seen: np.ndarray
+    sky_masks: dict[int, np.ndarray]  # view index -> (H, W) bool sky pixels
+
+
+def colour_seeds(background: F64, objects: dict[str, F64], tracks: dict[str, TrackPoses],
+                 views: list[SourceView], scene_T_city: F64, cfg: InitConfig, *,
+                 progress: bool = False) -> tuple[SeedColours, dict[str, SeedColours]]:
+    """Colour background (scene frame) and object (box frame) seeds from the views that see them.
+
+    Objects are placed at each view's own timestamp. Also returns, per view, the sky mask:
+    pixels looking above ``sky_min_elevation_deg`` with no seed projected within ``sky_dilate_px``.
+    """
+    owners = ["background", *objects]
+    sizes = [len(background), *(len(objects[t]) for t in objects)]
+    offsets = np.concatenate([[0], np.cumsum(sizes)])
+    n = int(offsets[-1])
+    rgb = np.full((n, 3), np.nan, np.float32)
+    best_z = np.full(n, np.inf)
+    seen = np.zeros(n, np.int32)
+    sky_masks: dict[int, np.ndarray] = {}
+    min_sin = np.sin(np.radians(cfg.sky_min_elevation_deg))
+    for view in tqdm(views, desc="colour seeds", unit="img", disable=not progress, leave=False):
+        parts = [background]
+        for tid in objects:
+            tr = tracks[tid]
+            if tr.present(view.timestamp_ns):
+                T = tr.scene_T_box_at(view.timestamp_ns)
+                parts.append(objects[tid] @ T[:3, :3].T + T[:3, 3])
+            else:
+                parts.append(np.full((len(objects[tid]), 3), np.nan))
+        pts = np.concatenate(parts) if n else np.zeros((0, 3))
+        cam_T_scene = T_inverse(scene_T_city @ view.city_T_cam)
+        with np.errstate(invalid="ignore"):
+            proj = project(pts, view.cam, cam_T_scene)
+        vis = zbuffer_visible(proj, view.cam.width, view.cam.height, cfg)
+        pu, pv = np.round(proj.u).astype(np.int64), np.round(proj.v).astype(np.int64)
+        vis &= view.valid[np.clip(pv, 0, view.cam.height - 1), np.clip(pu, 0, view.cam.width - 1)]
+        idx = proj.idx[vis]
+        seen[idx] += 1
+        better = proj.z[vis] < best_z[idx]
+        if np.any(better):
+            take = idx[better]
+            rgb[take] = bilinear(view.image(), proj.u[vis][better], proj.v[vis][better])
+            best_z[take] = proj.z[vis][better]
+        sky_masks[view.index] = sky_mask(view, scene_T_city, proj, min_sin, cfg.sky_dilate_px)
+    splits = [SeedColours(rgb[a:b], seen[a:b], sky_masks) for a, b in zip(offsets[:-1], offsets[1:])]
+    return splits[0], dict(zip(owners[1:], splits[1:]))

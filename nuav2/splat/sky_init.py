@@ -1,0 +1,178 @@
+"""What no seed covers: sky masks (upward, uncovered, sky-coloured pixels), the sky texture's first
+colours, and facade seeds for structure above the LiDAR's reach."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import cv2
+import numpy as np
+
+from nuav2.geometry import F64, T_inverse
+from nuav2.splat.views import Projection, SourceView, project
+
+if TYPE_CHECKING:
+    from nuav2.splat.init import InitConfig
+
+
+def sky_mask(view: SourceView, scene_T_city: F64, proj: Projection, min_sin: float,
+              dilate: int) -> np.ndarray:
+    h, w = view.cam.height, view.cam.width
+    covered = np.zeros((h, w), np.uint8)
+    rows = np.clip(np.round(proj.v).astype(np.int64), 0, h - 1)
+    covered[rows, np.clip(np.round(proj.u).astype(np.int64), 0, w - 1)] = 1
+    if dilate > 0:
+        covered = cv2.dilate(covered, np.ones((2 * dilate + 1, 2 * dilate + 1), np.uint8))
+    up = elevation_sin(view, scene_T_city) > min_sin
+    return up & (covered == 0) & view.valid
+
+
+def elevation_sin(view: SourceView, scene_T_city: F64) -> np.ndarray:
+    """(H, W) sine of each pixel ray's elevation in the scene frame (z up)."""
+    h, w = view.cam.height, view.cam.width
+    R = (scene_T_city @ view.city_T_cam)[:3, :3]
+    K = view.cam.K
+    u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
+    d = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones_like(u)], -1) @ R.T
+    return d[..., 2] / np.linalg.norm(d, axis=-1)
+
+
+def refine_sky_masks(views: list[SourceView], candidates: dict[int, np.ndarray], scene_T_city: F64,
+                     tol: float = 0.12, n_bins: int = 18) -> dict[int, np.ndarray]:
+    """Keep only candidate sky pixels whose colour matches the sky at their elevation.
+
+    LiDAR does not reach the tops of tall buildings, so "no seed projects here" also marks
+    facades above the highest beam. The sky's colour per elevation band is the median over all
+    candidates (facades are a minority), and a candidate stays sky only within ``tol`` (RGB
+    distance in [0, 1]) of it."""
+    elev: dict[int, np.ndarray] = {}
+    samples_e, samples_c = [], []
+    for view in views:
+        m = candidates.get(view.index)
+        if m is None or not m.any():
+            continue
+        e = elevation_sin(view, scene_T_city)
+        elev[view.index] = e
+        idx = np.flatnonzero(m.ravel())[::7]  # a subsample is plenty for a median
+        samples_e.append(e.ravel()[idx])
+        samples_c.append(view.image().reshape(-1, 3)[idx])
+    if not samples_e:
+        return {k: v.copy() for k, v in candidates.items()}
+    se, sc = np.concatenate(samples_e), np.concatenate(samples_c)
+    bins = np.clip((np.arcsin(np.clip(se, -1, 1)) / (np.pi / 2) * n_bins).astype(int), 0, n_bins - 1)
+    ref = np.full((n_bins, 3), np.nan)
+    for b in range(n_bins):
+        if np.any(bins == b):
+            ref[b] = np.median(sc[bins == b], axis=0)
+    ok = np.all(np.isfinite(ref), axis=1)
+    if not ok.any():
+        return {k: v.copy() for k, v in candidates.items()}
+    good = np.flatnonzero(ok)
+    ref = ref[good[np.argmin(np.abs(good[None, :] - np.arange(n_bins)[:, None]), axis=1)]]  # fill gaps
+    out = {}
+    for view in views:
+        m = candidates.get(view.index)
+        if m is None or view.index not in elev:
+            out[view.index] = np.zeros((view.cam.height, view.cam.width), bool) if m is None else m.copy()
+            continue
+        b = np.clip((np.arcsin(np.clip(elev[view.index], -1, 1)) / (np.pi / 2) * n_bins).astype(int), 0,
+                    n_bins - 1)
+        dist = np.linalg.norm(view.image() - ref[b], axis=-1)
+        out[view.index] = m & (dist < tol)
+    return out
+
+
+def facade_seeds(views: list[SourceView], candidates: dict[int, np.ndarray], sky: dict[int, np.ndarray],
+                 lidar_scene: F64, scene_T_city: F64, cfg: InitConfig) -> tuple[F64, np.ndarray]:
+    """Seeds for structure above the LiDAR's reach (tall facades), with their pixel colours.
+
+    Pixels that no seed covers but that are not sky either are placed along their ray at the
+    camera depth of the nearest LiDAR-covered pixel below them in the same column: on a vertical
+    facade seen by a level camera that depth is constant up the column."""
+    pts_out, rgb_out = [], []
+    max_gap = cfg.facade_max_gap_frac
+    for view in views[:: max(1, cfg.facade_view_stride)]:
+        cand, sk = candidates.get(view.index), sky.get(view.index)
+        if cand is None or sk is None:
+            continue
+        miss = cand & ~sk
+        if not miss.any():
+            continue
+        h, w = view.cam.height, view.cam.width
+        scene_T_cam = scene_T_city @ view.city_T_cam
+        proj = project(lidar_scene, view.cam, T_inverse(scene_T_cam))
+        zimg = np.full(h * w, np.inf)
+        rows = np.clip(np.round(proj.v).astype(np.int64), 0, h - 1)
+        np.minimum.at(zimg, rows * w + np.clip(np.round(proj.u).astype(np.int64), 0, w - 1), proj.z)
+        zimg = zimg.reshape(h, w)
+        carried = zimg.copy()
+        age = np.where(np.isfinite(zimg), 0, h)
+        for r in range(h - 2, -1, -1):  # carry the depth upwards, remembering how far it came
+            take = ~np.isfinite(zimg[r]) & np.isfinite(carried[r + 1])
+            carried[r] = np.where(take, carried[r + 1], zimg[r])
+            age[r] = np.where(take, age[r + 1] + 1, age[r])
+        pick = miss & np.isfinite(carried) & (age <= max_gap * h)
+        pick[1::2] = False
+        pick[:, 1::2] = False
+        vv, uu = np.nonzero(pick)
+        if len(vv) == 0:
+            continue
+        K = view.cam.K
+        z = carried[vv, uu]
+        p_cam = np.column_stack([(uu - K[0, 2]) / K[0, 0] * z, (vv - K[1, 2]) / K[1, 1] * z, z])
+        pts_out.append(p_cam @ scene_T_cam[:3, :3].T + scene_T_cam[:3, 3])
+        rgb_out.append(view.image()[vv, uu])
+    if not pts_out:
+        return np.zeros((0, 3)), np.zeros((0, 3), np.float32)
+    pts, rgb = np.concatenate(pts_out), np.concatenate(rgb_out)
+    # One seed per voxel (the first pixel's colour), so many views of a facade do not pile up.
+    key = np.floor(pts / (2 * cfg.voxel_m)).astype(np.int64)
+    _, first = np.unique(key, axis=0, return_index=True)
+    first = np.sort(first)
+    return pts[first], rgb[first]
+
+
+def sky_texture_from_views(views: list[SourceView], sky_masks: dict[int, np.ndarray], scene_T_city: F64,
+                           height: int, width: int) -> np.ndarray | None:
+    """(H, W, 3) mean sky colour per lat-long bin from the sky pixels, holes filled by row means
+    (then the overall mean); None if no view has a sky pixel."""
+    import torch
+
+    from nuav2.splat.scene_model import SkyModel, pixel_rays
+
+    acc = np.zeros((height * width, 3))
+    cnt = np.zeros(height * width)
+    n_bins = height * width
+    for view in views:
+        m = sky_masks.get(view.index)
+        if m is None or not m.any():
+            continue
+        m = m.copy()
+        m[1::2] = False  # every other row and column is plenty for a 32 x 128 texture
+        m[:, 1::2] = False
+        dirs = pixel_rays(view.cam, scene_T_city @ view.city_T_cam)[torch.from_numpy(m)]
+        g = SkyModel.direction_to_grid(dirs, width).numpy()
+        col = np.clip(np.round((g[:, 0] + 1) / 2 * width).astype(np.int64), 0, width) % width
+        row = np.clip(np.round((g[:, 1] + 1) / 2 * (height - 1)).astype(np.int64), 0, height - 1)
+        bins = row * width + col
+        pix = view.image()[m]
+        for c in range(3):
+            acc[:, c] += np.bincount(bins, weights=pix[:, c], minlength=n_bins)
+        cnt += np.bincount(bins, minlength=n_bins)
+    if cnt.sum() == 0:
+        return None
+    overall = acc.sum(0) / cnt.sum()
+    tex = np.where(cnt[:, None] > 0, acc / np.maximum(cnt, 1)[:, None], np.nan).reshape(height, width, 3)
+    for r in range(height):
+        row = tex[r]
+        ok = np.all(np.isfinite(row), axis=1)
+        row[~ok] = row[ok].mean(0) if ok.any() else np.nan
+    rows_ok = np.all(np.isfinite(tex[:, 0]), axis=1)
+    for r in range(height):
+        if not rows_ok[r]:
+            if rows_ok.any():
+                nearest = np.flatnonzero(rows_ok)[np.argmin(np.abs(np.flatnonzero(rows_ok) - r))]
+                tex[r] = tex[nearest]
+            else:
+                tex[r] = overall
+    return tex

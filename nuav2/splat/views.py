@@ -1,0 +1,105 @@
+"""Source camera images for reconstruction: which images, their poses at their own timestamps,
+their pixels at the training resolution (read lazily, kept as uint8) and their ego-body masks."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from nuav2.geometry import F64
+from nuav2.rig import CameraSpec
+from nuav2.scene import SceneLog
+
+
+@dataclass
+class SourceView:
+    """One source camera image at training resolution, its pose and (lazily) its pixels."""
+
+    index: int
+    channel: str
+    timestamp_ns: int
+    path: Path
+    cam: CameraSpec  # scaled to the training resolution
+    city_T_cam: F64
+    valid: np.ndarray = field(repr=False)  # (H, W) bool, False under the ego-body mask
+    _image: np.ndarray | None = field(default=None, repr=False)
+
+    def image_u8(self) -> np.ndarray:
+        """(H, W, 3) uint8 RGB at the training resolution (kept in memory: 4x smaller than float)."""
+        if self._image is None:
+            self._image = load_image_u8(self.path, self.cam.width, self.cam.height)
+        return self._image
+
+    def image(self) -> np.ndarray:
+        """(H, W, 3) float32 RGB in [0, 1] at the training resolution."""
+        img = self.image_u8()
+        return img.astype(np.float32) / 255.0 if img.dtype == np.uint8 else img.astype(np.float32)
+
+
+def load_image_u8(path: Path, width: int, height: int) -> np.ndarray:
+    """Read an image file as uint8 RGB, area-resized to width x height."""
+    bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if bgr is None:
+        raise ValueError(f"{path}: camera image missing or unreadable")
+    if bgr.shape[:2] != (height, width):
+        bgr = cv2.resize(bgr, (width, height), interpolation=cv2.INTER_AREA)
+    return np.ascontiguousarray(bgr[:, :, ::-1])
+
+
+def load_image(path: Path, width: int, height: int) -> np.ndarray:
+    """Read an image file as float32 RGB [0,1], area-resized to width x height."""
+    return load_image_u8(path, width, height).astype(np.float32) / 255.0
+
+
+def source_views(scene: SceneLog, image_scale: float, *, frame_stride: int = 1,
+                 channels: list[str] | None = None) -> list[SourceView]:
+    """Every ``frame_stride``-th image of every camera, posed at its own timestamp."""
+    views: list[SourceView] = []
+    for cam in scene.rig.cameras:
+        if channels is not None and cam.channel not in channels:
+            continue
+        small = cam.scaled(image_scale)
+        valid = ~small.ego_mask()
+        frames = sorted(scene.camera_frames.get(cam.channel, []), key=lambda f: f.timestamp_ns)
+        for f in frames[::frame_stride]:
+            city_T_cam = scene.city_T_ego_at(int(f.timestamp_ns)) @ cam.ego_T_cam
+            views.append(SourceView(len(views), cam.channel, int(f.timestamp_ns), Path(f.path), small,
+                                    city_T_cam, valid))
+    return views
+
+
+@dataclass
+class Projection:
+    """Pixels of points in one view: index into the input, pixel coordinates, camera depth."""
+
+    idx: np.ndarray
+    u: F64
+    v: F64
+    z: F64
+
+
+def project(points_scene: F64, cam: CameraSpec, cam_T_scene: F64, near: float = 0.1) -> Projection:
+    """Points in front of the camera that land inside the image (rig pixel convention)."""
+    p = points_scene @ cam_T_scene[:3, :3].T + cam_T_scene[:3, 3]
+    front = np.flatnonzero(p[:, 2] > near)
+    p = p[front]
+    u = cam.K[0, 0] * p[:, 0] / p[:, 2] + cam.K[0, 2]
+    v = cam.K[1, 1] * p[:, 1] / p[:, 2] + cam.K[1, 2]
+    inside = (u > -0.5) & (u < cam.width - 0.5) & (v > -0.5) & (v < cam.height - 0.5)
+    return Projection(front[inside], u[inside], v[inside], p[inside, 2])
+
+
+def bilinear(image: np.ndarray, u: F64, v: F64) -> np.ndarray:
+    """Bilinear sample of an (H, W, C) image at rig-convention pixel coordinates (centre of u is u)."""
+    h, w = image.shape[:2]
+    u = np.clip(u, 0, w - 1)
+    v = np.clip(v, 0, h - 1)
+    u0 = np.minimum(np.floor(u).astype(np.int64), w - 2 if w > 1 else 0)
+    v0 = np.minimum(np.floor(v).astype(np.int64), h - 2 if h > 1 else 0)
+    u1, v1 = np.minimum(u0 + 1, w - 1), np.minimum(v0 + 1, h - 1)
+    a, b = (u - u0)[:, None], (v - v0)[:, None]
+    return ((1 - a) * (1 - b) * image[v0, u0] + a * (1 - b) * image[v0, u1]
+            + (1 - a) * b * image[v1, u0] + a * b * image[v1, u1])
