@@ -25,7 +25,7 @@ from nuav2.splat.init import InitConfig, SourceView, initial_scene, source_views
 from nuav2.splat.quality import QualityConfig, SourceCoverage
 from nuav2.splat.render_target import SplatImageSource, SplatRenderer
 from nuav2.splat.scene_model import SplatScene
-from nuav2.splat.train import CHECKPOINT_FILE, TrainConfig, Trainer
+from nuav2.splat.train import CHECKPOINT_FILE, TrainConfig, Trainer, spread
 
 log = logging.getLogger(__name__)
 
@@ -43,6 +43,7 @@ class ReconConfig:
     train_width_px: int = 256
     frame_stride: int = 1  # use every k-th image of each camera
     holdout_every: int = 0  # hold out every k-th image of each camera (0: none) for evaluation
+    validation_every: int = 10  # early-stop images when nothing else is held out (see validation_views)
     channels: tuple[str, ...] | None = None  # source cameras (None: all ring cameras of the rig)
     sh_degree: int = 0
     seed: int = 0
@@ -107,17 +108,23 @@ def default_channels(scene: SceneLog) -> list[str] | None:
     return ring or None
 
 
-def split_views(views: list[SourceView], holdout_every: int) -> tuple[list[SourceView], list[SourceView]]:
-    """(train, held-out): every ``holdout_every``-th image of each camera is held out (0: none)."""
-    if holdout_every <= 0:
+def split_views(views: list[SourceView], every: int, *, keep_every: bool = False
+                ) -> tuple[list[SourceView], list[SourceView]]:
+    """Split each camera's images (in time order) by position: every ``every``-th image goes to the second
+    list (held out; 0: none), the rest to the first; with ``keep_every`` the other way round (a frame
+    stride: every ``every``-th image is kept, the rest go to the second list)."""
+    if every <= 0:
         return views, []
-    train, held = [], []
+    first, second = [], []
     per_channel: dict[str, int] = {}
     for v in views:
         k = per_channel.get(v.channel, 0)
         per_channel[v.channel] = k + 1
-        (held if k % holdout_every == holdout_every // 2 else train).append(v)
-    return train, held
+        if keep_every:
+            (first if k % every == 0 else second).append(v)
+        else:
+            (second if k % every == every // 2 else first).append(v)
+    return first, second
 
 
 def reconstruct(scene: SceneLog, config: ReconConfig | None = None, *, progress: bool = True,
@@ -132,15 +139,23 @@ def reconstruct(scene: SceneLog, config: ReconConfig | None = None, *, progress:
     torch.manual_seed(cfg.seed)
     t0 = time.perf_counter()
     channels = list(cfg.channels) if cfg.channels else default_channels(scene)
-    views = source_views(scene, cfg.scale_for(scene), frame_stride=cfg.frame_stride, channels=channels)
+    views = source_views(scene, cfg.scale_for(scene), channels=channels)
     if not views:
         raise ValueError(f"log {scene.log_id}: no camera images to reconstruct from")
-    train_views, held = split_views(views, cfg.holdout_every)
+    used, skipped = split_views(views, cfg.frame_stride, keep_every=True)
+    train_views, held = split_views(used, cfg.holdout_every)
+    validation = validation_views(train_views, held, skipped, cfg)
+    if validation and not (held or skipped):  # carved out of the training images
+        keep = {id(v) for v in validation}
+        train_views = [v for v in train_views if id(v) not in keep]
+    others = list({id(v): v for v in [*held, *validation]}.values())
     init = initial_scene(scene, train_views, cfg.init, sh_degree=cfg.sh_degree, seed=cfg.seed,
-                         progress=progress)
+                         progress=progress, other_views=others)
     t_init = time.perf_counter() - t0
-    trainer = Trainer(init.scene, scene, train_views, init.sky_masks,
-                      replace(cfg.train, seed=cfg.seed, threads=cfg.threads))
+    train_cfg = replace(cfg.train, seed=cfg.seed, threads=cfg.threads)
+    if init.budget is not None:  # the Gaussian budget follows the scene (nuav2.splat.budget)
+        train_cfg = replace(train_cfg, densify=replace(train_cfg.densify, budget=init.budget))
+    trainer = Trainer(init.scene, scene, train_views, init.sky_masks, train_cfg, validation=validation)
     ckpt = Path(checkpoint_dir) if checkpoint_dir is not None else None
     if ckpt is not None:
         ckpt.mkdir(parents=True, exist_ok=True)
@@ -154,15 +169,28 @@ def reconstruct(scene: SceneLog, config: ReconConfig | None = None, *, progress:
         "train": {k: v for k, v in report.to_dict().items() if k != "losses"},
         "source_views": [view_record(v) for v in train_views],
         "heldout_views": [view_record(v) for v in held],
+        "validation_views": [view_record(v) for v in validation],
+        "exposure": init.exposure.to_dict() if init.exposure is not None else None,
         "config": cfg.to_dict(),
     })
     return splat
 
 
+def validation_views(train: list[SourceView], held: list[SourceView], skipped: list[SourceView],
+                     cfg: ReconConfig) -> list[SourceView]:
+    """Images the early-stop rule measures, never trained on: the held-out images when there are any, else
+    the frames ``frame_stride`` skips, else every ``validation_every``-th training image (spread over
+    the log, at most ``train.eval_views``)."""
+    if cfg.train.eval_every <= 0 or cfg.train.eval_views <= 0:
+        return []
+    pool = held or skipped or (split_views(train, cfg.validation_every)[1] if cfg.validation_every else [])
+    return spread(pool, cfg.train.eval_views)
+
+
 def view_record(v: SourceView) -> dict:
     """A source camera image as plain data (enough to rebuild its pose and intrinsics)."""
-    return {"channel": v.channel, "timestamp_ns": int(v.timestamp_ns), "path": str(v.path),
-            "width": v.cam.width, "height": v.cam.height, "K": v.cam.K.tolist(),
+    return {"index": int(v.index), "channel": v.channel, "timestamp_ns": int(v.timestamp_ns),
+            "path": str(v.path), "width": v.cam.width, "height": v.cam.height, "K": v.cam.K.tolist(),
             "city_T_cam": np.asarray(v.city_T_cam).tolist()}
 
 
@@ -174,8 +202,8 @@ def views_from_records(records: list[dict]) -> list[SourceView]:
     for i, r in enumerate(records):
         K = np.asarray(r["K"], np.float64)
         cam = CameraSpec(r["channel"], int(r["width"]), int(r["height"]), K, np.eye(4))
-        out.append(SourceView(i, r["channel"], int(r["timestamp_ns"]), Path(r["path"]), cam,
-                              np.asarray(r["city_T_cam"], np.float64),
+        out.append(SourceView(int(r.get("index", i)), r["channel"], int(r["timestamp_ns"]), Path(r["path"]),
+                              cam, np.asarray(r["city_T_cam"], np.float64),
                               np.ones((cam.height, cam.width), bool)))
     return out
 

@@ -167,14 +167,15 @@ def test_ground_seeds_follow_raster_and_skip_occupied(fixture_scene):
     scene_T_city = T_inverse(city_T_scene)
     surface = GroundSurface(scene, scene_T_city)
     cfg = InitConfig(ground_spacing_m=1.0, ground_radius_m=8.0)
-    seeds = ground_seeds(surface, np.zeros((0, 2)), cfg)
+    seeds, cells = ground_seeds(surface, np.zeros((0, 2)), cfg)
     assert len(seeds) > 100
+    np.testing.assert_allclose(seeds[:, :2], (cells + 0.5) * cfg.ground_spacing_m)  # an aligned grid
     z_city = scene.ground_height.height_at(seeds[:, :2] + city_T_scene[:2, 3])
     ok = np.isfinite(z_city)
     assert ok.mean() > 0.9
     np.testing.assert_allclose(seeds[ok, 2], z_city[ok] - city_T_scene[2, 3], atol=1e-9)
     blocked = seeds[:10, :2]
-    fewer = ground_seeds(surface, blocked, cfg)
+    fewer, _ = ground_seeds(surface, blocked, cfg)
     assert len(fewer) <= len(seeds) - 10
     d = np.min(np.linalg.norm(fewer[:, None, :2] - blocked[None], axis=-1), axis=1)
     assert np.all(d > 0.3)

@@ -39,23 +39,28 @@ class GroundSurface:
         return z
 
 
-def ground_seeds(ground: GroundSurface, occupied_xy_scene: F64, cfg: InitConfig) -> F64:
-    """Grid points on the ground surface within ``ground_radius_m`` of the ego path, skipping
-    cells where LiDAR shows something standing (buildings, parked cars)."""
+def ground_seeds(ground: GroundSurface, occupied_xy_scene: F64, cfg: InitConfig) -> tuple[F64, np.ndarray]:
+    """Grid points on the ground surface within ``ground_radius_m`` of the ego path, skipping cells where
+    LiDAR shows something standing (buildings, parked cars): (N, 3) scene points and their (N, 2) integer
+    grid cells (cell (i, j) is centred at ((i + 0.5) s, (j + 0.5) s), so coarser blocks align)."""
     if cfg.ground_spacing_m <= 0:
-        return np.zeros((0, 3))
+        return np.zeros((0, 3)), np.zeros((0, 2), np.int64)
     from scipy.spatial import cKDTree
 
     path = ground.path
     s, r = cfg.ground_spacing_m, cfg.ground_radius_m
-    lo, hi = path[:, :2].min(0) - r, path[:, :2].max(0) + r
-    gx, gy = np.meshgrid(np.arange(lo[0], hi[0], s), np.arange(lo[1], hi[1], s))
-    xy = np.column_stack([gx.ravel(), gy.ravel()]) + s / 2
-    xy = xy[np.asarray(ground.tree.query(xy, k=1)[0]) <= r]
+    lo = np.floor((path[:, :2].min(0) - r) / s).astype(np.int64)
+    hi = np.ceil((path[:, :2].max(0) + r) / s).astype(np.int64)
+    gi, gj = np.meshgrid(np.arange(lo[0], hi[0]), np.arange(lo[1], hi[1]))
+    cell = np.column_stack([gi.ravel(), gj.ravel()])
+    xy = (cell + 0.5) * s
+    near = np.asarray(ground.tree.query(xy, k=1)[0]) <= r
+    xy, cell = xy[near], cell[near]
     if len(occupied_xy_scene) and len(xy):
         d, _ = cKDTree(occupied_xy_scene).query(xy, k=1)
-        xy = xy[d > max(s, 0.3)]
-    return np.column_stack([xy, ground(xy)])
+        free = d > max(s, 0.3)
+        xy, cell = xy[free], cell[free]
+    return np.column_stack([xy, ground(xy)]), cell
 
 
 def occupied_cells(points_scene: F64, ground_z_fn, clear_height: float) -> F64:

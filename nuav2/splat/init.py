@@ -13,20 +13,35 @@ no seed covers: the sky mask the sky model and the opacity loss train on.
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
+from nuav2.exposure import ExposureConfig, ExposureModel
 from nuav2.geometry import F64, T_inverse
 from nuav2.scene import SceneLog
 from nuav2.splat.actors import build_tracks, is_moving
+from nuav2.splat.budget import (
+    TIER_FAR,
+    TIER_GROUND,
+    TIER_NAMES,
+    TIER_NEAR,
+    TIER_PAINT,
+    BudgetConfig,
+    GroundSeeds,
+    keep_by_priority,
+    merge_plain_ground,
+    scene_budget,
+)
 from nuav2.splat.colouring import colour_seeds
 from nuav2.splat.ground import GroundSurface, ground_seeds, occupied_cells
+from nuav2.splat.harmonise import set_exposure, solve_view_exposure
 from nuav2.splat.lidar_seeds import (
     aggregate_lidar,
     banded_downsample,
     box_surface_points,
     cap_points,
+    distance_to_path,
     knn_scales,
     voxel_downsample,
 )
@@ -74,6 +89,9 @@ class InitConfig:
     motion_min_path_m: float = 1.0  # a track moves if its path is longer than this ...
     motion_min_std_m: float = 0.3  # ... and its position spread (largest axis std) exceeds this
     motion_min_observations: int = 2
+    exposure: ExposureConfig | None = field(default_factory=ExposureConfig)  # None: images used as taken
+    exposure_points: int = 30_000  # background seeds the exposure solve looks at
+    budget: BudgetConfig | None = field(default_factory=BudgetConfig)  # None: fixed budget, uniform thinning
 
 
 # ---- the initial scene -----------------------------------------------------------------------------
@@ -88,11 +106,16 @@ class InitResult:
     scene: object  # SplatScene (typed loosely to keep the import light)
     sky_masks: dict[int, np.ndarray]
     stats: dict
+    exposure: ExposureModel | None = None
+    budget: int | None = None  # densification budget for this scene (None: the training config's)
 
 
 def initial_scene(scene: SceneLog, views: list[SourceView], cfg: InitConfig, *, sh_degree: int = 1,
-                  seed: int = 0, progress: bool = False) -> InitResult:
-    """Seed background, moving objects and sky from the log's LiDAR, ground surface and images."""
+                  seed: int = 0, progress: bool = False, other_views: list[SourceView] = ()) -> InitResult:
+    """Seed background, moving objects and sky from the log's LiDAR, ground surface and images.
+
+    With ``cfg.exposure`` the views (and ``other_views``, e.g. held-out images) are first brought to
+    the log's reference exposure (:mod:`nuav2.splat.harmonise`)."""
     import torch
 
     from nuav2.splat.scene_model import GaussianSet, ObjectModel, SkyModel, SplatScene, scene_frame_for
@@ -108,9 +131,15 @@ def initial_scene(scene: SceneLog, views: list[SourceView], cfg: InitConfig, *, 
 
     surface = GroundSurface(scene, scene_T_city)
     occupied = occupied_cells(bg_lidar, surface, cfg.ground_clear_height_m)
-    ground = ground_seeds(surface, occupied, cfg)
+    ground, ground_cell = ground_seeds(surface, occupied, cfg)
     bg_pts = np.concatenate([bg_lidar, ground])
     kind = np.concatenate([np.full(len(bg_lidar), LIDAR), np.full(len(ground), GROUND)])
+    exposure = None
+    if cfg.exposure is not None:
+        every = [*views, *other_views]
+        exposure = solve_view_exposure(every, bg_pts, scene_T_city, cfg.exposure,
+                                       max_points=cfg.exposure_points, seed=seed)
+        set_exposure(every, exposure)
     obj_pts: dict[str, F64] = {}
     for tid, pts in agg.objects.items():
         pts = cap_points(voxel_downsample(pts, cfg.object_voxel_m), cfg.max_object_points, rng)
@@ -124,19 +153,32 @@ def initial_scene(scene: SceneLog, views: list[SourceView], cfg: InitConfig, *, 
 
     keep = np.isfinite(bg_col.rgb).all(1) if not cfg.keep_unseen else np.ones(len(bg_pts), bool)
     bg_rgb = np.where(np.isfinite(bg_col.rgb), bg_col.rgb, 0.5)
-    bg_pts, bg_rgb, kind = bg_pts[keep], bg_rgb[keep], kind[keep]
+    is_ground = kind == GROUND
+    # Plain ground merges into coarser discs; textured ground (paint) keeps its fine seeds.
+    g = GroundSeeds(bg_pts[is_ground & keep], bg_rgb[is_ground & keep], ground_cell[keep[is_ground]],
+                    np.ones(int((is_ground & keep).sum()), np.int64))
+    n_fine = len(g)
+    if cfg.budget is not None:
+        g = merge_plain_ground(g, cfg.budget.merge_levels, cfg.budget.merge_tol)
+    rest = ~is_ground & keep
     facade, facade_rgb = (facade_seeds(views, bg_col.sky_masks, sky_masks, bg_lidar, scene_T_city, cfg)
                           if cfg.facade_view_stride > 0 else (np.zeros((0, 3)), np.zeros((0, 3))))
-    bg_pts = np.concatenate([bg_pts, facade])
-    bg_rgb = np.concatenate([bg_rgb, facade_rgb])
-    kind = np.concatenate([kind, np.full(len(facade), FACADE)])
-    if len(bg_pts) > cfg.max_background:
-        sel = np.sort(rng.choice(len(bg_pts), cfg.max_background, replace=False))
-        bg_pts, bg_rgb, kind = bg_pts[sel], bg_rgb[sel], kind[sel]
+    bg_pts = np.concatenate([g.xyz, bg_pts[rest], facade])
+    bg_rgb = np.concatenate([g.rgb, bg_rgb[rest], facade_rgb])
+    kind = np.concatenate([np.full(len(g), GROUND), kind[rest], np.full(len(facade), FACADE)])
+    spacing = np.concatenate([g.size * cfg.ground_spacing_m, np.zeros(int(rest.sum()) + len(facade))])
+    tier = np.where(kind == GROUND, np.where(spacing <= cfg.ground_spacing_m, TIER_PAINT, TIER_GROUND),
+                    np.where(distance_to_path(bg_pts[:, :2], path_xy) < cfg.voxel_bands_m[0], TIER_NEAR,
+                             TIER_FAR))
+    if cfg.budget is None:  # the former rule: a uniform sample over all seeds
+        tier = np.zeros(len(tier), np.int64)
+    sel = keep_by_priority(tier, cfg.max_background, rng)
+    bg_pts, bg_rgb, kind, spacing, tier = bg_pts[sel], bg_rgb[sel], kind[sel], spacing[sel], tier[sel]
     is_ground = kind == GROUND
     scales = np.repeat(knn_scales(bg_pts, 3, cfg.min_scale_m, cfg.max_scale_m)[:, None], 3, axis=1)
     # Ground seeds are flat discs on a regular grid: they tile the road without gaps or bumps.
-    scales[is_ground] = [0.6 * cfg.ground_spacing_m, 0.6 * cfg.ground_spacing_m, 0.02]
+    scales[is_ground, 0] = scales[is_ground, 1] = 0.6 * spacing[is_ground]
+    scales[is_ground, 2] = 0.02
     background = GaussianSet.create(bg_pts, bg_rgb, scales, opacity=cfg.opacity, sh_degree=sh_degree)
 
     objects = []
@@ -159,12 +201,16 @@ def initial_scene(scene: SceneLog, views: list[SourceView], cfg: InitConfig, *, 
             p = torch.from_numpy(np.clip(tex, 0.02, 0.98)).float().permute(2, 0, 1)
             sky.texture.copy_(torch.log(p / (1 - p)))
     splat = SplatScene(city_T_scene, background, objects, sky)
+    n_seeds = len(background) + sum(len(o.gaussians) for o in objects)
+    budget = scene_budget(n_seeds, len(objects), cfg.budget) if cfg.budget is not None else None
     stats = {"tracks": len(tracks), "moving_tracks": len(moving), "objects": len(objects),
              "lidar_sweeps": agg.n_sweeps, "lidar_points": agg.n_points,
              "background_lidar_seeds": int((kind == LIDAR).sum()),
              "facade_seeds": int((kind == FACADE).sum()),
-             "ground_seeds": int(is_ground.sum()),
+             "ground_seeds": int(is_ground.sum()), "ground_seeds_fine": n_fine,
+             "seeds_by_tier": {name: int((tier == t).sum()) for t, name in enumerate(TIER_NAMES)},
+             "gaussian_budget": budget,
              "background_gaussians": len(background),
              "object_gaussians": int(sum(len(o.gaussians) for o in objects)),
              "sky_pixels": int(sum(int(m.sum()) for m in sky_masks.values()))}
-    return InitResult(splat, sky_masks, stats)
+    return InitResult(splat, sky_masks, stats, exposure, budget)

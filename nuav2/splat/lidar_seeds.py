@@ -7,10 +7,10 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
-from tqdm import tqdm
 
 from nuav2.geometry import F64, T_from_quat_trans, T_inverse
 from nuav2.scene import SceneLog
+from nuav2.splat.progress import Progress
 from nuav2.splat.scene_model import TrackPoses
 
 if TYPE_CHECKING:
@@ -43,7 +43,9 @@ def aggregate_lidar(scene: SceneLog, scene_T_city: F64, moving: dict[str, TrackP
     sweeps = scene.lidar_sweeps[:: max(1, cfg.sweep_stride)]
     lo, hi = np.asarray(cfg.ego_box_min), np.asarray(cfg.ego_box_max)
     n_points = 0
-    for ref in tqdm(sweeps, desc="lidar", unit="sweep", disable=not progress, leave=False):
+    bar = Progress(len(sweeps), f"lidar {scene.log_id[:8]}", enabled=progress, unit="sweep")
+    for ref in sweeps:
+        bar.update()
         pts = scene.sweep(ref).xyz_ego
         pts = pts[np.all(np.isfinite(pts), axis=1)]
         pts = pts[~np.all((pts >= lo) & (pts <= hi), axis=1)]
@@ -62,6 +64,7 @@ def aggregate_lidar(scene: SceneLog, scene_T_city: F64, moving: dict[str, TrackP
         scene_T_ego = scene_T_city @ scene.city_T_ego_at(int(ref.timestamp_ns))
         rest = pts[~in_any]
         bg_parts.append(rest @ scene_T_ego[:3, :3].T + scene_T_ego[:3, 3])
+    bar.close()
     bg = np.concatenate(bg_parts) if bg_parts else np.zeros((0, 3))
     objs = {tid: (np.concatenate(p) if p else np.zeros((0, 3))) for tid, p in obj_parts.items()}
     return LidarAggregate(bg, objs, len(sweeps), n_points)

@@ -20,13 +20,13 @@ from pathlib import Path
 import cv2
 import numpy as np
 import torch
-from tqdm import tqdm
 
 from nuav2.atomic import atomic_write_bytes
 from nuav2.geometry import F64, T_inverse
 from nuav2.scene import SceneLog
 from nuav2.splat.densify import DensifyConfig, DensifyStrategy
 from nuav2.splat.losses import depth_loss, photometric_loss, psnr, sky_loss
+from nuav2.splat.progress import Progress
 from nuav2.splat.scene_model import GaussianSet, SplatScene
 from nuav2.splat.views import SourceView, project
 
@@ -60,6 +60,14 @@ class TrainConfig:
     threads: int = 2
     checkpoint_every: int = 0  # 0: only at the end (when a checkpoint dir is given)
     time_budget_s: float | None = None  # stop early once training has used this much wall time
+    # Early stop (with validation views): every ``eval_every`` steps the mean PSNR of up to
+    # ``eval_views`` held-out images is measured; after ``patience`` measurements in a row without a
+    # gain of ``min_delta_db`` over the best so far, training stops (not before ``min_iterations``).
+    eval_every: int = 100
+    eval_views: int = 12
+    patience: int = 3  # 0: never stop early (validation is still measured and reported)
+    min_delta_db: float = 0.05
+    min_iterations: int = 0
 
 
 @dataclass
@@ -122,6 +130,13 @@ def lidar_depth_samples(scene: SceneLog, view: SourceView, scene_T_city: F64, ma
     return uvz[:max_points]
 
 
+def spread(items: list, n: int) -> list:
+    """At most ``n`` items, evenly spaced over the list (all when n <= 0 or the list is short)."""
+    if n <= 0 or len(items) <= n:
+        return items
+    return [items[i] for i in np.linspace(0, len(items) - 1, n).round().astype(int)]
+
+
 def scene_extent(views: list[SourceView], minimum: float) -> float:
     """Radius of the camera centres around their mean (x1.1), at least ``minimum`` metres."""
     c = np.array([v.city_T_cam[:3, 3] for v in views]) if views else np.zeros((1, 3))
@@ -180,6 +195,8 @@ class TrainReport:
     densify: list[dict]
     stopped_early: bool = False
     losses: list[float] = field(default_factory=list)
+    stop_reason: str = "iterations"  # "iterations", "plateau" (validation PSNR) or "time budget"
+    validation: list[list[float]] = field(default_factory=list)  # [step, mean held-out PSNR dB]
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -189,11 +206,18 @@ class Trainer:
     """Holds the scene, its optimizer and the RNG state; ``run`` trains to ``cfg.iterations``."""
 
     def __init__(self, splat: SplatScene, scene: SceneLog, views: list[SourceView],
-                 sky_masks: dict[int, np.ndarray], cfg: TrainConfig) -> None:
+                 sky_masks: dict[int, np.ndarray], cfg: TrainConfig,
+                 validation: list[SourceView] = ()) -> None:
         if not views:
             raise ValueError(f"log {scene.log_id}: no source camera images to train on")
         torch.manual_seed(cfg.seed)
         self.splat, self.cfg = splat, cfg
+        self.name = scene.log_id[:8]
+        no_depth = np.zeros((0, 3), np.float32)
+        self.val_data = [ViewData(v, np.zeros((v.cam.height, v.cam.width), bool), no_depth)
+                         for v in spread(list(validation), cfg.eval_views)]
+        self.validation: list[list[float]] = []  # [step, PSNR] per measurement
+        self.best_val, self.bad_evals, self.plateau = -math.inf, 0, False
         self.rng = np.random.default_rng(cfg.seed)
         self.extent = scene_extent(views, cfg.extent_min_m)
         scene_T_city = splat.scene_T_city
@@ -259,42 +283,72 @@ class Trainer:
         self.step += 1
         return value, psnr(out.rgb, img, valid)
 
+    def validate(self) -> float | None:
+        """Mean PSNR of the validation views at full training resolution (None without any)."""
+        if not self.val_data:
+            return None
+        vals = []
+        with torch.no_grad():
+            for d in self.val_data:
+                cam, img, valid, _, _ = d.at(1.0)
+                v = d.view
+                out = self.splat.render(cam, v.city_T_cam, v.timestamp_ns, sh_degree=self._active_sh())
+                vals.append(psnr(out.rgb, img, valid))
+        return float(np.mean([v for v in vals if math.isfinite(v)] or [0.0]))
+
+    def _check_plateau(self) -> None:
+        """Measure validation PSNR when due and apply the patience rule."""
+        cfg = self.cfg
+        if not self.val_data or cfg.eval_every <= 0 or self.step % cfg.eval_every != 0:
+            return
+        v = self.validate()
+        self.validation.append([self.step, v])
+        if v > self.best_val + cfg.min_delta_db:
+            self.best_val, self.bad_evals = v, 0
+        else:
+            self.best_val = max(self.best_val, v)
+            self.bad_evals += 1
+        if cfg.patience > 0 and self.bad_evals >= cfg.patience and self.step >= cfg.min_iterations:
+            self.plateau = True
+
     def run(self, *, progress: bool = True, checkpoint_dir: Path | None = None,
             stop_at: int | None = None) -> TrainReport:
-        """Train to ``cfg.iterations`` (or ``stop_at``, as if killed there after a checkpoint)."""
+        """Train to ``cfg.iterations``, or until validation PSNR stops improving (``patience``), or
+        ``stop_at`` (as if killed there after a checkpoint). ``progress``: a bar on a terminal, else a
+        log line every few seconds (:class:`nuav2.splat.progress.Progress`)."""
         cfg = self.cfg
         end = cfg.iterations if stop_at is None else min(cfg.iterations, int(stop_at))
         torch.set_num_threads(cfg.threads)
         t0 = time.perf_counter()
-        ema_loss, ema_psnr, stopped = None, None, False
-        bar = tqdm(total=cfg.iterations, initial=self.step, desc="train", unit="it", disable=not progress)
-        try:
-            while self.step < end:
+        ema_loss, ema_psnr, reason = None, None, "iterations"
+        with Progress(cfg.iterations, f"train {self.name}", enabled=progress, initial=self.step) as bar:
+            while self.step < end and not self.plateau:
                 loss, p = self.train_step()
                 self.losses.append(loss)
                 ema_loss = loss if ema_loss is None else 0.9 * ema_loss + 0.1 * loss
                 if math.isfinite(p):
                     ema_psnr = p if ema_psnr is None else 0.9 * ema_psnr + 0.1 * p
-                bar.update()
-                if self.step % 10 == 0:
-                    bar.set_postfix(loss=f"{ema_loss:.4f}", psnr=f"{ema_psnr or 0:.2f}",
-                                    n=self.splat.num_gaussians())
+                self._check_plateau()
+                status = {"psnr": float(ema_psnr or 0.0), "gaussians": self.splat.num_gaussians()}
+                if self.validation:
+                    status["held-out psnr"] = float(self.validation[-1][1])
+                bar.update(1, **status)
                 every = cfg.checkpoint_every
                 if checkpoint_dir is not None and every and self.step % every == 0:
                     self.save(Path(checkpoint_dir) / CHECKPOINT_FILE)
                 if cfg.time_budget_s is not None and time.perf_counter() - t0 > cfg.time_budget_s:
-                    stopped = True
+                    reason = "time budget"
                     break
-        finally:
-            bar.close()
+        if self.plateau:
+            reason = "plateau"
         if checkpoint_dir is not None:
             self.save(Path(checkpoint_dir) / CHECKPOINT_FILE)
         for g in named_sets(self.splat).values():
             if not g.all_finite():
                 raise FloatingPointError("training produced non-finite Gaussian parameters")
         return TrainReport(self.step, time.perf_counter() - t0, float(ema_psnr or 0.0),
-                           self.splat.num_gaussians(), list(self.strategy.history), stopped,
-                           list(self.losses))
+                           self.splat.num_gaussians(), list(self.strategy.history), reason != "iterations",
+                           list(self.losses), reason, [list(x) for x in self.validation])
 
     # ---- checkpoint / resume ----
     def state(self) -> dict:
@@ -302,7 +356,9 @@ class Trainer:
                 "optimizer": self.optimizer.state_dict(), "rng": self.rng.bit_generator.state,
                 "torch_rng": torch.get_rng_state(), "losses": list(self.losses),
                 "densify_stats": {k: (v.grad, v.count) for k, v in self.strategy.stats.items()},
-                "densify_history": list(self.strategy.history)}
+                "densify_history": list(self.strategy.history),
+                "validation": [list(x) for x in self.validation], "best_val": self.best_val,
+                "bad_evals": self.bad_evals, "plateau": self.plateau}
 
     def save(self, path: Path) -> None:
         buf = io.BytesIO()
@@ -333,3 +389,6 @@ class Trainer:
         self.strategy.stats = {k: _Stats(g.clone(), c.clone()) for k, (g, c) in st["densify_stats"].items()}
         self.strategy.history = list(st["densify_history"])
         self.boxes = {f"obj:{o.track.track_id}": o.track.size_lwh for o in self.splat.objects}
+        self.validation = [list(x) for x in st.get("validation", [])]
+        self.best_val = float(st.get("best_val", -math.inf))
+        self.bad_evals, self.plateau = int(st.get("bad_evals", 0)), bool(st.get("plateau", False))

@@ -9,6 +9,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from nuav2.exposure import ExposureModel
 from nuav2.geometry import F64
 from nuav2.rig import CameraSpec
 from nuav2.scene import SceneLog
@@ -25,13 +26,27 @@ class SourceView:
     cam: CameraSpec  # scaled to the training resolution
     city_T_cam: F64
     valid: np.ndarray = field(repr=False)  # (H, W) bool, False under the ego-body mask
+    exposure: ExposureModel | None = field(default=None, repr=False)  # corrects image ``index`` when set
     _image: np.ndarray | None = field(default=None, repr=False)
 
     def image_u8(self) -> np.ndarray:
-        """(H, W, 3) uint8 RGB at the training resolution (kept in memory: 4x smaller than float)."""
+        """(H, W, 3) uint8 RGB at the training resolution (kept in memory: 4x smaller than float), at the
+        log's reference exposure once :meth:`set_exposure` has been called."""
         if self._image is None:
-            self._image = load_image_u8(self.path, self.cam.width, self.cam.height)
+            img = load_image_u8(self.path, self.cam.width, self.cam.height)
+            self._image = img if self.exposure is None else self.exposure.correct(img, self.index, self.cam.K)
         return self._image
+
+    def raw_image_u8(self) -> np.ndarray:
+        """The image as the camera took it (no exposure correction; not cached)."""
+        if self.exposure is None:
+            return self.image_u8()
+        return load_image_u8(self.path, self.cam.width, self.cam.height)
+
+    def set_exposure(self, model: ExposureModel | None) -> None:
+        """Correct this image (``index``) with ``model`` from now on."""
+        self.exposure = model
+        self._image = None
 
     def image(self) -> np.ndarray:
         """(H, W, 3) float32 RGB in [0, 1] at the training resolution."""

@@ -20,12 +20,14 @@ import cv2
 import numpy as np
 
 from nuav2.atomic import atomic_write_json
+from nuav2.exposure import ExposureConfig, ExposureModel
 from nuav2.geometry import F64, T_inverse
 from nuav2.nuscenes_db.images import ImageSourceError, RenderedImages
 from nuav2.rig import CameraSpec
 from nuav2.scene import CameraFrame, SceneLog
 from nuav2.warp.backward_warp import FILL_MODES, BlendConfig, SourceView, fill_uncovered, warp_from_sources
 from nuav2.warp.depth_proxy import GroundSurface, ProxyConfig, ProxyGeometry, render_depth_proxy
+from nuav2.warp.harmonise import solve_source_exposure, static_points
 from nuav2.warp.lidar_cloud import CloudConfig, LidarCloud
 from nuav2.warp.tracks import DEFAULT_TOLERANCE_NS, BoxesAt, BoxTracks
 
@@ -45,6 +47,7 @@ class WarpConfig:
     fill: str = "inpaint"
     background: tuple[float, float, float] = (0.5, 0.5, 0.5)
     cache_mb: int = 1024  # source views (image + proxy) kept for reuse across target cameras
+    harmonise: ExposureConfig | None = field(default_factory=ExposureConfig)  # None: sources as taken
 
     def __post_init__(self) -> None:
         if self.fill not in FILL_MODES:
@@ -109,6 +112,7 @@ class WarpRenderer:
         self._view_bytes = 0
         self._valid: dict[str, np.ndarray | None] = {}
         self.coverage: dict[str, dict[int, float]] = {}  # channel -> timestamp_ns -> covered fraction
+        self._exposure: tuple[ExposureModel, dict[tuple[str, int], int]] | None = None
 
     # -- geometry -------------------------------------------------------------------------------
     def city_T_ego_at(self, timestamp_ns: int) -> F64:
@@ -142,6 +146,16 @@ class WarpRenderer:
         return geometry, boxes
 
     # -- sources --------------------------------------------------------------------------------
+    def exposure(self) -> tuple[ExposureModel, dict[tuple[str, int], int]] | None:
+        """The log's source exposure model and image index per (channel, frame index), solved on first use
+        (:mod:`nuav2.warp.harmonise`); None when harmonising is off."""
+        if self.config.harmonise is None:
+            return None
+        if self._exposure is None:
+            points = static_points(self.scene, lambda i: self.cloud.sweep_points(i)[0])
+            self._exposure = solve_source_exposure(self.scene, self.frames, points, self.config.harmonise)
+        return self._exposure
+
     def _ego_valid(self, camera: CameraSpec) -> np.ndarray | None:
         if camera.channel not in self._valid:
             self._valid[camera.channel] = ~camera.ego_mask() if camera.ego_mask_polygons else None
@@ -161,8 +175,11 @@ class WarpRenderer:
         vis_cam = cam.scaled(scale) if scale < 1.0 else cam
         geom, _ = self.geometry_at(t)
         proxy = render_depth_proxy(vis_cam, city_T_cam, geom, self.config.proxy)
-        view = SourceView(read_rgb(Path(frame.path), cam), cam, city_T_cam, t, vis_cam, proxy.inverse_depth(),
-                          self._ego_valid(cam))
+        image = read_rgb(Path(frame.path), cam)
+        exposure = self.exposure()
+        if exposure is not None:
+            image = exposure[0].correct(image, exposure[1][(channel, index)], cam.K)
+        view = SourceView(image, cam, city_T_cam, t, vis_cam, proxy.inverse_depth(), self._ego_valid(cam))
         nbytes = view.image.nbytes + view.inv_depth.nbytes
         self._views[key] = view
         self._view_bytes += nbytes

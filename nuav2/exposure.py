@@ -1,0 +1,231 @@
+"""Per-image exposure and white balance, per-camera vignetting, solved from images that see shared points.
+
+Real cameras disagree: auto-exposure drifts over time, each camera has its own white balance,
+lenses darken towards the corners. Blending such images (warp mode) shows seams; training on
+them (render mode) bakes the differences into the Gaussians and the target rig flickers. As
+panorama stitchers do, the differences are solved from overlaps: static 3D points seen by
+several images (across cameras and over time) must have one colour. Per observation of point
+p in image v, channel k, at normalised radius rho (pixel distance from the principal point
+over the half diagonal):
+
+    log c[v,p,k] = log g[v,k] + a1 rho^2 + a2 rho^4 + log r[p,k]
+
+solved by least squares (point colours eliminated exactly) with a ridge prior pulling log g to 0,
+re-weighted a few times so that observations whose
+residual is beyond ``outlier_sigma`` robust standard deviations dropped (moving things,
+occlusion mistakes, specular spots), and the gauge fixed so the mean log gain over all images
+is 0: the reference exposure is the log's geometric mean, one for the whole log, so target-rig
+images rendered or warped at it match each other and stay steady over time. The synthetic
+world's exposure model is never looked at: only image colours and geometry are.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+F64 = np.ndarray
+
+
+@dataclass(frozen=True)
+class ExposureConfig:
+    """Knobs of the solve (colours in [0, 1])."""
+
+    iterations: int = 8
+    prior_weight: float = 2.0  # ridge weight (in observations) pulling each log gain to 0
+    vignetting: bool = True  # also solve one radial fall-off for all cameras (AV2's ring: one model)
+    outlier_sigma: float = 2.5
+    min_value: float = 0.04  # darker or ...
+    max_value: float = 0.96  # ... brighter channels are not observations (noise floor, clipping)
+    max_observations_per_image: int = 4000
+    cell_px: int = 2  # z-buffer cell of the visibility test
+    depth_rel_tol: float = 0.03
+    depth_abs_tol_m: float = 0.2
+    near_m: float = 0.5
+
+
+@dataclass
+class Observations:
+    """Colours of points in images: which image, which point, RGB in [0, 1], rho^2."""
+
+    image: list[np.ndarray] = field(default_factory=list)
+    point: list[np.ndarray] = field(default_factory=list)
+    rgb: list[np.ndarray] = field(default_factory=list)
+    rho2: list[np.ndarray] = field(default_factory=list)
+
+    def add(self, image_index: int, point: np.ndarray, rgb: np.ndarray, rho2: np.ndarray) -> None:
+        self.image.append(np.full(len(point), int(image_index), np.int64))
+        self.point.append(np.asarray(point, np.int64))
+        self.rgb.append(np.asarray(rgb, np.float64).reshape(-1, 3))
+        self.rho2.append(np.asarray(rho2, np.float64))
+
+    def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        if not self.image:
+            return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0)
+        return (np.concatenate(self.image), np.concatenate(self.point), np.concatenate(self.rgb),
+                np.concatenate(self.rho2))
+
+
+def nearest_surface(u: F64, v: F64, z: F64, width: int, height: int, cell_px: int, rel_tol: float,
+                    abs_tol_m: float) -> np.ndarray:
+    """Which projected points are the nearest surface in their z-buffer cell (3x3-min dilated, so a
+    far point seen through a gap between near points' pixels is still hidden)."""
+    c = max(1, int(cell_px))
+    gw, gh = (width + c - 1) // c, (height + c - 1) // c
+    cell = (np.clip(np.round(v).astype(np.int64) // c, 0, gh - 1) * gw
+            + np.clip(np.round(u).astype(np.int64) // c, 0, gw - 1))
+    zmin = np.full(gw * gh, np.inf, np.float32)
+    np.minimum.at(zmin, cell, z.astype(np.float32))
+    zmin = cv2.erode(zmin.reshape(gh, gw), np.ones((3, 3), np.uint8), borderType=cv2.BORDER_REPLICATE).ravel()
+    return z <= zmin[cell] * (1 + rel_tol) + abs_tol_m
+
+
+def radius2(u: F64, v: F64, K: F64, width: int, height: int) -> F64:
+    """Squared pixel distance from the principal point over the squared half diagonal."""
+    half_diag2 = 0.25 * (width**2 + height**2)
+    return ((u - K[0, 2]) ** 2 + (v - K[1, 2]) ** 2) / half_diag2
+
+
+def sample_bilinear(image: np.ndarray, u: F64, v: F64) -> F64:
+    """(N, 3) colours in [0, 1] of a uint8 or float image at pixel centres (u, v) (centre of u is u)."""
+    img = image.astype(np.float32) / 255.0 if image.dtype == np.uint8 else image.astype(np.float32)
+    m = cv2.remap(img, np.asarray(u, np.float32).reshape(1, -1), np.asarray(v, np.float32).reshape(1, -1),
+                  cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    return m.reshape(-1, 3).astype(np.float64)
+
+
+def observe(points: F64, K: F64, width: int, height: int, cam_T_points: F64, image: np.ndarray,
+            valid: np.ndarray | None, cfg: ExposureConfig, rng: np.random.Generator | None = None
+            ) -> tuple[np.ndarray, F64, F64]:
+    """(point indices, RGB, rho^2) of the ``points`` an image sees (nearest surface, inside the image,
+    on valid pixels), at most ``cfg.max_observations_per_image``. ``K``/``width``/``height`` describe
+    ``image`` (scale them together when reading images reduced)."""
+    p = points @ cam_T_points[:3, :3].T + cam_T_points[:3, 3]
+    front = np.flatnonzero(p[:, 2] > cfg.near_m)
+    p = p[front]
+    u = K[0, 0] * p[:, 0] / p[:, 2] + K[0, 1] * p[:, 1] / p[:, 2] + K[0, 2]
+    v = K[1, 1] * p[:, 1] / p[:, 2] + K[1, 2]
+    inside = (u > 0) & (u < width - 1) & (v > 0) & (v < height - 1)
+    idx, u, v, z = front[inside], u[inside], v[inside], p[inside, 2]
+    vis = nearest_surface(u, v, z, width, height, cfg.cell_px, cfg.depth_rel_tol, cfg.depth_abs_tol_m)
+    if valid is not None:
+        vis &= valid[np.round(v).astype(np.int64), np.round(u).astype(np.int64)]
+    idx, u, v = idx[vis], u[vis], v[vis]
+    if len(idx) > cfg.max_observations_per_image:
+        rng = rng or np.random.default_rng(0)
+        pick = np.sort(rng.choice(len(idx), cfg.max_observations_per_image, replace=False))
+        idx, u, v = idx[pick], u[pick], v[pick]
+    return idx, sample_bilinear(image, u, v), radius2(u, v, K, width, height)
+
+
+@dataclass(frozen=True)
+class ExposureModel:
+    """Solved corrections: ``log_gain`` per image and channel, the cameras' radial ``vignetting``."""
+
+    log_gain: np.ndarray  # (V, 3)
+    vignetting: np.ndarray  # (2,): a1, a2 of the shared radial fall-off
+    camera_of_image: np.ndarray  # (V,) int
+    observations: int = 0
+    inliers: int = 0
+
+    @staticmethod
+    def identity(camera_of_image: np.ndarray) -> ExposureModel:
+        cams = np.asarray(camera_of_image, np.int64)
+        return ExposureModel(np.zeros((len(cams), 3)), np.zeros(2), cams)
+
+    def gain(self, image_index: int) -> np.ndarray:
+        return np.exp(self.log_gain[int(image_index)])
+
+    def factor(self, image_index: int, K: F64, width: int, height: int) -> np.ndarray:
+        """(H, W, 3) float32: the observed image is the reference-exposure image times this."""
+        a1, a2 = self.vignetting
+        uu, vv = np.meshgrid(np.arange(width, dtype=np.float64), np.arange(height, dtype=np.float64))
+        r2 = radius2(uu, vv, K, width, height)[..., None]
+        log_f = a1 * r2 + a2 * r2 * r2 + self.log_gain[int(image_index)]
+        return np.exp(log_f).astype(np.float32)
+
+    def correct(self, image: np.ndarray, image_index: int, K: F64) -> np.ndarray:
+        """The image at the reference exposure (same dtype; uint8 rounds and clips)."""
+        h, w = image.shape[:2]
+        f = self.factor(image_index, K, w, h)
+        if image.dtype == np.uint8:
+            return np.clip(image.astype(np.float32) / f + 0.5, 0, 255).astype(np.uint8)
+        return (image / f).astype(image.dtype)
+
+    def to_dict(self) -> dict:
+        return {"log_gain": self.log_gain.round(5).tolist(), "vignetting": self.vignetting.round(5).tolist(),
+                "camera_of_image": self.camera_of_image.tolist(), "observations": self.observations,
+                "inliers": self.inliers}
+
+
+def solve_exposure(obs: Observations, camera_of_image: np.ndarray,
+                   cfg: ExposureConfig | None = None) -> ExposureModel:
+    """Solve gains (and vignetting) from ``obs`` (see module doc); identity where nothing is known.
+
+    Per channel, the point colours are eliminated exactly (each point's unknown only meets its
+    own observations), leaving a small dense system in the image gains and camera vignetting;
+    ``iterations`` rounds re-weight it, dropping outliers."""
+    from scipy import sparse
+
+    cfg = cfg or ExposureConfig()
+    cams = np.asarray(camera_of_image, np.int64)
+    n_img = len(cams)
+    img, pt, rgb, rho2 = obs.arrays()
+    ok = np.all((rgb >= cfg.min_value) & (rgb <= cfg.max_value), axis=1)
+    img, pt, rgb, rho2 = img[ok], pt[ok], rgb[ok], rho2[ok]
+    # Only points seen by two or more images say anything about the images.
+    _, pt, counts = np.unique(pt, return_inverse=True, return_counts=True)
+    multi = counts[pt.reshape(-1)] >= 2
+    img, pt, rgb, rho2 = img[multi], pt.reshape(-1)[multi], rgb[multi], rho2[multi]
+    _, pt = np.unique(pt, return_inverse=True)
+    pt = pt.reshape(-1)
+    model = ExposureModel.identity(cams)
+    if len(img) == 0:
+        return model
+    n_obs, n_pt = len(img), int(pt.max()) + 1
+    n_vig = 2 if cfg.vignetting else 0
+    n = n_img + n_vig
+    rows = np.arange(n_obs)
+    cols = [img]
+    vals = [np.ones(n_obs)]
+    if cfg.vignetting:
+        cols += [np.full(n_obs, n_img), np.full(n_obs, n_img + 1)]
+        vals += [rho2, rho2 * rho2]
+    A = sparse.csr_matrix((np.concatenate(vals), (np.tile(rows, len(cols)), np.concatenate(cols))),
+                          shape=(n_obs, n))
+    B = sparse.csr_matrix((np.ones(n_obs), (rows, pt)), shape=(n_obs, n_pt))
+    prior = np.zeros(n)
+    prior[:n_img] = cfg.prior_weight
+    prior[n_img:] = 1e-3
+    logc = np.log(rgb)
+    lg = np.zeros((n_img, 3))
+    vig = np.zeros((3, 2))
+    w = np.ones(n_obs)
+    for _ in range(max(1, cfg.iterations)):
+        W = sparse.diags(w)
+        AtW = (A.T @ W).tocsr()
+        AtWA = (AtW @ A).toarray()
+        AtWB = (AtW @ B).tocsr()
+        d = np.asarray(B.T @ w).reshape(-1)
+        Dinv = sparse.diags(1.0 / np.maximum(d, 1e-12))
+        S = AtWB @ Dinv
+        N = AtWA - (S @ AtWB.T).toarray() + np.diag(prior)
+        resid = np.zeros((n_obs, 3))
+        for k in range(3):
+            y = logc[:, k]
+            rhs = AtW @ y - S @ (B.T @ (w * y))
+            x = np.linalg.solve(N, rhs)
+            r_pt = Dinv @ (B.T @ (w * (y - A @ x)))
+            resid[:, k] = y - A @ x - B @ r_pt
+            lg[:, k] = x[:n_img]
+            if cfg.vignetting:
+                vig[k] = x[n_img:]
+        r = np.abs(resid).max(1)
+        sigma = 1.4826 * np.median(r[w > 0]) + 1e-6
+        w = (r <= cfg.outlier_sigma * sigma).astype(np.float64)
+    seen = np.bincount(img, minlength=n_img) > 0
+    lg[seen] -= lg[seen].mean(0)  # the reference exposure: the mean over the images that were observed
+    # one fall-off for all channels (the per-channel solves differ by noise only)
+    return ExposureModel(lg, vig.mean(0), cams, int(n_obs), int(w.sum()))

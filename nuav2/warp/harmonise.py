@@ -1,0 +1,95 @@
+"""Warp mode's source images at one reference exposure: gains solved on their overlaps before blending.
+
+Every source image of the log is read once at a reduced size (about ``work_width_px`` wide) and
+looks at static points: the ground surface on a grid along the ego path and the static LiDAR of
+every few sweeps (voxel-downsampled). Points seen by several images tie their exposures
+together (:mod:`nuav2.exposure`); the solved per-image gains and per-camera vignetting then
+divide each source image as it is loaded, so blended seams and consecutive target images agree.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from nuav2.exposure import ExposureConfig, ExposureModel, Observations, observe, solve_exposure
+from nuav2.geometry import F64, T_inverse
+from nuav2.nuscenes_db.images import ImageSourceError
+from nuav2.rig import CameraSpec
+from nuav2.scene import CameraFrame, SceneLog
+
+WORK_WIDTH_PX = 320
+GROUND_SPACING_M = 0.5
+GROUND_RADIUS_M = 20.0
+LIDAR_VOXEL_M = 0.3
+SWEEP_STRIDE = 5
+
+
+def read_reduced(path: Path, camera: CameraSpec,
+                 width_px: int = WORK_WIDTH_PX) -> tuple[np.ndarray, CameraSpec]:
+    """uint8 RGB image at about ``width_px`` wide (decoded reduced when large) and its camera."""
+    scale = min(1.0, width_px / camera.width)
+    small = camera.scaled(scale) if scale < 1.0 else camera
+    flag = cv2.IMREAD_COLOR
+    for f, reduced in ((8, cv2.IMREAD_REDUCED_COLOR_8), (4, cv2.IMREAD_REDUCED_COLOR_4),
+                       (2, cv2.IMREAD_REDUCED_COLOR_2)):
+        if camera.width / f >= small.width:
+            flag = reduced
+            break
+    img = cv2.imread(str(path), flag)
+    if img is None:
+        raise ImageSourceError(f"{path}: not a readable image")
+    if img.shape[:2] != (small.height, small.width):
+        img = cv2.resize(img, (small.width, small.height), interpolation=cv2.INTER_AREA)
+    return np.ascontiguousarray(img[:, :, ::-1]), small
+
+
+def static_points(scene: SceneLog, sweep_points: Callable[[int], F64]) -> F64:
+    """City points for the solve: a ground grid along the path (the log's ground-height raster, else the
+    height under the nearest ego pose) and the static LiDAR of every few sweeps, voxel-downsampled."""
+    from scipy.spatial import cKDTree
+
+    path = scene.city_T_ego[:, :2, 3]
+    lo, hi = path.min(0) - GROUND_RADIUS_M, path.max(0) + GROUND_RADIUS_M
+    gx, gy = np.meshgrid(np.arange(lo[0], hi[0], GROUND_SPACING_M), np.arange(lo[1], hi[1], GROUND_SPACING_M))
+    xy = np.column_stack([gx.ravel(), gy.ravel()])
+    dist, nearest = cKDTree(path).query(xy, k=1)
+    near = np.asarray(dist) <= GROUND_RADIUS_M
+    xy, nearest = xy[near], np.asarray(nearest)[near]
+    z = scene.city_T_ego[nearest, 2, 3] - scene.rig.origin_height_m
+    if scene.ground_height is not None:
+        zr = scene.ground_height.height_at(xy)
+        z = np.where(np.isfinite(zr), zr, z)
+    parts = [np.column_stack([xy, z])]
+    if scene.load_lidar is not None:
+        parts += [sweep_points(i) for i in range(0, len(scene.lidar_sweeps), SWEEP_STRIDE)]
+    pts = np.concatenate(parts)
+    key = np.floor(pts / LIDAR_VOXEL_M).astype(np.int64)
+    _, first = np.unique(key, axis=0, return_index=True)
+    return pts[np.sort(first)]
+
+
+def solve_source_exposure(scene: SceneLog, frames: dict[str, list[CameraFrame]], points_city: F64,
+                          cfg: ExposureConfig) -> tuple[ExposureModel, dict[tuple[str, int], int]]:
+    """Exposure model over every source image and the image index of each (channel, frame index)."""
+    channels = list(frames)
+    index: dict[tuple[str, int], int] = {}
+    cams: list[int] = []
+    obs = Observations()
+    rng = np.random.default_rng(0)
+    for c, ch in enumerate(channels):
+        cam = scene.rig.camera(ch)
+        for j, f in enumerate(frames[ch]):
+            k = len(cams)
+            index[(ch, j)] = k
+            cams.append(c)
+            img, small = read_reduced(Path(f.path), cam)
+            city_T_cam = scene.city_T_ego_at(int(f.timestamp_ns)) @ cam.ego_T_cam
+            valid = ~small.ego_mask() if small.ego_mask_polygons else None
+            idx, rgb, rho2 = observe(points_city, small.K, small.width, small.height, T_inverse(city_T_cam),
+                                     img, valid, cfg, rng)
+            obs.add(k, idx, rgb, rho2)
+    return solve_exposure(obs, np.array(cams, np.int64), cfg), index
