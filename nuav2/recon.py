@@ -164,6 +164,8 @@ def reconstruct(scene: SceneLog, config: ReconConfig | None = None, *, progress:
             log.info("resumed %s at step %d", scene.log_id, trainer.step)
     report = trainer.run(progress=progress, checkpoint_dir=ckpt)
     splat = trainer.splat
+    for o in splat.objects:  # refined box poses become the track's poses
+        o.track.bake_deltas()
     splat.info.update({
         "log_id": scene.log_id, "source": scene.source, "init_stats": init.stats, "init_seconds": t_init,
         "train": {k: v for k, v in report.to_dict().items() if k != "losses"},

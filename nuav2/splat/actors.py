@@ -9,13 +9,15 @@ import numpy as np
 from nuav2.geometry import F64, T_from_quat_trans
 from nuav2.scene import SceneLog
 from nuav2.splat.scene_model import TrackPoses
+from nuav2.track_smoothing import smooth_box_poses
 
 if TYPE_CHECKING:
     from nuav2.splat.init import InitConfig
 
 
-def build_tracks(scene: SceneLog, scene_T_city: F64) -> list[TrackPoses]:
-    """Every annotated track's box poses in the scene frame, sorted by track id."""
+def build_tracks(scene: SceneLog, scene_T_city: F64, smooth: bool = False) -> list[TrackPoses]:
+    """Every annotated track's box poses in the scene frame, sorted by track id; ``smooth`` takes per-frame
+    label jitter out (:mod:`nuav2.track_smoothing`)."""
     ann = scene.annotations
     tracks = []
     for tid in sorted(set(ann.track_id.tolist())):
@@ -26,6 +28,8 @@ def build_tracks(scene: SceneLog, scene_T_city: F64) -> list[TrackPoses]:
         rows, ts = rows[keep], ts[keep]
         ego_T_box = T_from_quat_trans(ann.ego_q_box[rows], ann.ego_t_box[rows])
         scene_T_box = scene_T_city[None] @ scene.city_T_ego_at(ts).reshape(-1, 4, 4) @ ego_T_box
+        if smooth:
+            scene_T_box = smooth_box_poses(ts, scene_T_box)
         tracks.append(TrackPoses(str(tid), str(ann.category[rows[0]]), np.median(ann.size_lwh[rows], axis=0),
                                  ts, scene_T_box))
     return tracks

@@ -89,6 +89,7 @@ class InitConfig:
     motion_min_path_m: float = 1.0  # a track moves if its path is longer than this ...
     motion_min_std_m: float = 0.3  # ... and its position spread (largest axis std) exceeds this
     motion_min_observations: int = 2
+    smooth_tracks: bool = True  # take per-frame label jitter out of the box tracks (nuav2.track_smoothing)
     exposure: ExposureConfig | None = field(default_factory=ExposureConfig)  # None: images used as taken
     exposure_points: int = 30_000  # background seeds the exposure solve looks at
     budget: BudgetConfig | None = field(default_factory=BudgetConfig)  # None: fixed budget, uniform thinning
@@ -123,7 +124,7 @@ def initial_scene(scene: SceneLog, views: list[SourceView], cfg: InitConfig, *, 
     rng = np.random.default_rng(seed)
     city_T_scene = scene_frame_for(scene.city_T_ego[0])
     scene_T_city = T_inverse(city_T_scene)
-    tracks = build_tracks(scene, scene_T_city)
+    tracks = build_tracks(scene, scene_T_city, smooth=cfg.smooth_tracks)
     moving = {t.track_id: t for t in tracks if is_moving(t, cfg)}
     agg = aggregate_lidar(scene, scene_T_city, moving, cfg, progress=progress)
     path_xy = (scene_T_city[None] @ scene.city_T_ego)[:, :2, 3]

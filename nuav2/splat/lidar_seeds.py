@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from nuav2.geometry import F64, T_from_quat_trans, T_inverse
+from nuav2.geometry import F64, T_inverse
 from nuav2.scene import SceneLog
 from nuav2.splat.progress import Progress
 from nuav2.splat.scene_model import TrackPoses
@@ -52,16 +52,17 @@ def aggregate_lidar(scene: SceneLog, scene_T_city: F64, moving: dict[str, TrackP
         pts = pts[np.linalg.norm(pts, axis=1) <= cfg.max_range_m]
         n_points += len(pts)
         in_any = np.zeros(len(pts), bool)
-        for row in ann.at(int(ref.timestamp_ns)):
-            tid = str(ann.track_id[row])
-            if tid not in moving:
-                continue
-            box_T_ego = T_inverse(T_from_quat_trans(ann.ego_q_box[row], ann.ego_t_box[row]))
-            inside = points_in_box(pts, box_T_ego, ann.size_lwh[row], cfg.box_margin_m) & ~in_any
-            if np.any(inside):  # a point in two overlapping boxes goes to the first only
-                obj_parts[tid].append(pts[inside] @ box_T_ego[:3, :3].T + box_T_ego[:3, 3])
-            in_any |= inside
         scene_T_ego = scene_T_city @ scene.city_T_ego_at(int(ref.timestamp_ns))
+        for row in ann.at(int(ref.timestamp_ns)):
+            track = moving.get(str(ann.track_id[row]))
+            if track is None:
+                continue
+            # the track's (smoothed) pose, not the raw label: its points must not carry the label jitter
+            box_T_ego = T_inverse(track.scene_T_box_at(int(ref.timestamp_ns))) @ scene_T_ego
+            inside = points_in_box(pts, box_T_ego, track.size_lwh, cfg.box_margin_m) & ~in_any
+            if np.any(inside):  # a point in two overlapping boxes goes to the first only
+                obj_parts[track.track_id].append(pts[inside] @ box_T_ego[:3, :3].T + box_T_ego[:3, 3])
+            in_any |= inside
         rest = pts[~in_any]
         bg_parts.append(rest @ scene_T_ego[:3, :3].T + scene_T_ego[:3, 3])
     bar.close()

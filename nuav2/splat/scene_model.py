@@ -163,6 +163,9 @@ class TrackPoses:
     scene_T_box: F64  # (T, 4, 4)
     # The object is present from first - margin to last + margin (half a sweep period by default).
     presence_margin_ns: int = 50_000_000
+    # Learned per-frame corrections (T, 4): dx, dy, dz (box frame, metres) and dyaw (radians) applied
+    # after each annotated pose, interpolated linearly in between (None: the annotated poses as they are).
+    pose_delta: torch.Tensor | None = field(default=None, repr=False)
 
     def present(self, timestamp_ns: int) -> bool:
         t = int(timestamp_ns)
@@ -174,16 +177,45 @@ class TrackPoses:
         return interpolate_poses(self.timestamps_ns, self.scene_T_box, int(timestamp_ns),
                                  self.presence_margin_ns)[0]
 
+    def delta_at(self, timestamp_ns: int) -> torch.Tensor | None:
+        """The learned correction (4,) at a time: linear between the annotated times, held at the ends."""
+        if self.pose_delta is None:
+            return None
+        ts = self.timestamps_ns
+        t = min(max(int(timestamp_ns), int(ts[0])), int(ts[-1]))
+        hi = int(np.clip(np.searchsorted(ts, t, side="left"), 0, len(ts) - 1))
+        lo = max(hi - 1, 0) if ts[hi] != t else hi
+        a = 0.0 if hi == lo else (t - int(ts[lo])) / float(int(ts[hi]) - int(ts[lo]))
+        return (1.0 - a) * self.pose_delta[lo] + a * self.pose_delta[hi]
+
+    def bake_deltas(self) -> None:
+        """Fold the learned corrections into ``scene_T_box`` (the saved scene needs no tensors)."""
+        if self.pose_delta is None:
+            return
+        d = self.pose_delta.detach().double().numpy()
+        box_T_corr = np.zeros((len(d), 4, 4))
+        c, s = np.cos(d[:, 3]), np.sin(d[:, 3])
+        box_T_corr[:, 0, 0], box_T_corr[:, 0, 1], box_T_corr[:, 1, 0], box_T_corr[:, 1, 1] = c, -s, s, c
+        box_T_corr[:, 2, 2] = box_T_corr[:, 3, 3] = 1.0
+        box_T_corr[:, :3, 3] = d[:, :3]
+        self.scene_T_box = self.scene_T_box @ box_T_corr
+        self.pose_delta = None
+
     def state(self) -> dict:
-        return {"track_id": self.track_id, "category": self.category, "size_lwh": self.size_lwh.tolist(),
-                "timestamps_ns": self.timestamps_ns.tolist(), "scene_T_box": self.scene_T_box.tolist(),
-                "presence_margin_ns": self.presence_margin_ns}
+        d = {"track_id": self.track_id, "category": self.category, "size_lwh": self.size_lwh.tolist(),
+             "timestamps_ns": self.timestamps_ns.tolist(), "scene_T_box": self.scene_T_box.tolist(),
+             "presence_margin_ns": self.presence_margin_ns}
+        if self.pose_delta is not None:
+            d["pose_delta"] = self.pose_delta.detach().clone()
+        return d
 
     @staticmethod
     def from_state(d: dict) -> TrackPoses:
+        delta = d.get("pose_delta")
+        delta = None if delta is None else delta.detach().clone().float()
         return TrackPoses(d["track_id"], d["category"], np.asarray(d["size_lwh"], np.float64),
                           np.asarray(d["timestamps_ns"], np.int64), np.asarray(d["scene_T_box"], np.float64),
-                          int(d["presence_margin_ns"]))
+                          int(d["presence_margin_ns"]), delta)
 
 
 @dataclass
@@ -331,7 +363,18 @@ class SplatScene:
             t = torch.as_tensor(T[:3, 3], dtype=torch.float32)
             q_box = torch.as_tensor(rot_to_quat(T[:3, :3]), dtype=torch.float32)
             g = obj.gaussians
-            parts.append({"means": g.means @ R.T + t,
+            means = g.means
+            delta = obj.track.delta_at(timestamp_ns)
+            if delta is not None:  # box_T_corrected = [Rz(dyaw) | dxyz], learned (autograd reaches it)
+                c, s = torch.cos(delta[3]), torch.sin(delta[3])
+                zero, one = torch.zeros_like(c), torch.ones_like(c)
+                Rd = torch.stack([torch.stack([c, -s, zero]), torch.stack([s, c, zero]),
+                                  torch.stack([zero, zero, one])])
+                means = means @ Rd.T + delta[:3]
+                half = 0.5 * delta[3]
+                q_d = torch.stack([torch.cos(half), zero, zero, torch.sin(half)])
+                q_box = quat_mul_torch(q_box, q_d)
+            parts.append({"means": means @ R.T + t,
                           "quats": quat_mul_torch(q_box.expand_as(g.quats), g.quats),
                           "log_scales": g.log_scales, "opacity_logits": g.opacity_logits, "sh": g.sh})
             slices[obj.track.track_id] = slice(start, start + len(g))

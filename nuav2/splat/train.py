@@ -27,7 +27,7 @@ from nuav2.scene import SceneLog
 from nuav2.splat.densify import DensifyConfig, DensifyStrategy
 from nuav2.splat.losses import depth_loss, photometric_loss, psnr, sky_loss
 from nuav2.splat.progress import Progress
-from nuav2.splat.scene_model import GaussianSet, SplatScene
+from nuav2.splat.scene_model import GaussianSet, SplatScene, TrackPoses
 from nuav2.splat.views import SourceView, project
 
 log = logging.getLogger(__name__)
@@ -54,6 +54,12 @@ class TrainConfig:
     lr_quats: float = 1e-3
     lr_sky: float = 0.01
     lr_final_frac: float = 0.01
+    # Moving tracks' box poses are refined (per-frame corrections, nuav2.splat.scene_model.TrackPoses)
+    # from ``pose_start`` on, with a smoothness prior on their second differences and a pull to zero.
+    lr_pose: float = 1e-3  # 0: the (smoothed) annotated poses as they are
+    pose_start: int = 100
+    lambda_pose_smooth: float = 1.0
+    lambda_pose: float = 0.1
     densify: DensifyConfig = field(default_factory=DensifyConfig)
     extent_min_m: float = 20.0
     seed: int = 0
@@ -130,6 +136,22 @@ def lidar_depth_samples(scene: SceneLog, view: SourceView, scene_T_city: F64, ma
     return uvz[:max_points]
 
 
+def pose_prior(track: TrackPoses, lambda_size: float, lambda_smooth: float) -> torch.Tensor:
+    """Prior of a track's learned box-pose corrections: small (``lambda_size`` x mean squared correction)
+    and a smooth corrected path (``lambda_smooth`` x mean squared second difference of the corrected
+    centres and headings between annotated frames): labels jitter from frame to frame, actors do not."""
+    d = track.pose_delta
+    T = torch.as_tensor(track.scene_T_box, dtype=torch.float32)
+    centre = T[:, :3, 3] + torch.einsum("nij,nj->ni", T[:, :3, :3], d[:, :3])
+    yaw = torch.as_tensor(np.unwrap(np.arctan2(track.scene_T_box[:, 1, 0], track.scene_T_box[:, 0, 0])),
+                          dtype=torch.float32) + d[:, 3]
+    total = lambda_size * d.pow(2).sum(-1).mean()
+    if len(d) >= 3:
+        path = torch.cat([centre, yaw[:, None]], 1)
+        total = total + lambda_smooth * (path[2:] - 2 * path[1:-1] + path[:-2]).pow(2).sum(-1).mean()
+    return total
+
+
 def spread(items: list, n: int) -> list:
     """At most ``n`` items, evenly spaced over the list (all when n <= 0 or the list is short)."""
     if n <= 0 or len(items) <= n:
@@ -160,6 +182,8 @@ def base_lr(group_name: str, cfg: TrainConfig, extent: float) -> float:
     """Initial learning rate of an optimizer group named ``<set>/<param>`` or ``sky``."""
     if group_name == "sky":
         return cfg.lr_sky
+    if group_name.startswith("pose:"):
+        return cfg.lr_pose
     lrs = {"means": cfg.lr_means * extent, "quats": cfg.lr_quats, "log_scales": cfg.lr_scales,
            "opacity_logits": cfg.lr_opacity, "sh": cfg.lr_sh_dc}
     return lrs[group_name.rsplit("/", 1)[1]]
@@ -175,6 +199,11 @@ def build_optimizer(splat: SplatScene, cfg: TrainConfig, extent: float) -> torch
                            "name": f"{name}/{p}"})
     splat.sky.texture.requires_grad_(True)
     groups.append({"params": [splat.sky.texture], "lr": cfg.lr_sky, "name": "sky"})
+    for o in splat.objects:
+        if o.track.pose_delta is not None:
+            o.track.pose_delta.requires_grad_(True)
+            groups.append({"params": [o.track.pose_delta], "lr": cfg.lr_pose,
+                           "name": f"pose:{o.track.track_id}"})
     return torch.optim.Adam(groups, lr=1e-3, eps=1e-15, fused=True)
 
 
@@ -213,6 +242,10 @@ class Trainer:
         torch.manual_seed(cfg.seed)
         self.splat, self.cfg = splat, cfg
         self.name = scene.log_id[:8]
+        if cfg.lr_pose > 0:
+            for o in splat.objects:
+                if o.track.pose_delta is None:
+                    o.track.pose_delta = torch.zeros(len(o.track.timestamps_ns), 4)
         no_depth = np.zeros((0, 3), np.float32)
         self.val_data = [ViewData(v, np.zeros((v.cam.height, v.cam.width), bool), no_depth)
                          for v in spread(list(validation), cfg.eval_views)]
@@ -237,9 +270,18 @@ class Trainer:
         for g in self.optimizer.param_groups:
             if g["name"].endswith("/means") or g["name"] == "sky":
                 g["lr"] = base_lr(g["name"], self.cfg, self.extent) * decay
+            elif g["name"].startswith("pose:"):
+                g["lr"] = self.cfg.lr_pose if self.step >= self.cfg.pose_start else 0.0
 
     def _active_sh(self) -> int:
         return min(self.splat.sh_degree, self.step // max(1, self.cfg.sh_degree_every))
+
+    def _pose_prior(self) -> torch.Tensor | float:
+        total: torch.Tensor | float = 0.0
+        for o in self.splat.objects:
+            if o.track.pose_delta is not None and o.track.pose_delta.requires_grad:
+                total = total + pose_prior(o.track, self.cfg.lambda_pose, self.cfg.lambda_pose_smooth)
+        return total
 
     # ---- one iteration ----
     def train_step(self) -> tuple[float, float]:
@@ -258,6 +300,7 @@ class Trainer:
             loss = loss + cfg.lambda_depth * depth_loss(out.depth, out.alpha, uvz, cfg.depth_trim)
         if cfg.lambda_sky > 0:
             loss = loss + cfg.lambda_sky * sky_loss(out.alpha, sky)
+        loss = loss + self._pose_prior()
         value = float(loss.detach())
         if math.isfinite(value):
             loss.backward()

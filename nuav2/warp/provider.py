@@ -48,6 +48,7 @@ class WarpConfig:
     background: tuple[float, float, float] = (0.5, 0.5, 0.5)
     cache_mb: int = 1024  # source views (image + proxy) kept for reuse across target cameras
     harmonise: ExposureConfig | None = field(default_factory=ExposureConfig)  # None: sources as taken
+    smooth_tracks: bool = True  # take per-frame label jitter out of the box tracks (nuav2.track_smoothing)
 
     def __post_init__(self) -> None:
         if self.fill not in FILL_MODES:
@@ -96,7 +97,7 @@ class WarpRenderer:
         self.config = config or WarpConfig()
         self._poses: dict[int, F64] = {}
         self._boxes: OrderedDict[int, BoxesAt] = OrderedDict()
-        self.tracks = BoxTracks.from_scene(scene)
+        self.tracks = BoxTracks.from_scene(scene, smooth=self.config.smooth_tracks)
         self.cloud = LidarCloud(scene, self.tracks, self.config.cloud, self.ground_at)
         self.frames: dict[str, list[CameraFrame]] = {}
         self.frame_ns: dict[str, np.ndarray] = {}

@@ -14,6 +14,7 @@ import numpy as np
 
 from nuav2.geometry import F64, T_from_quat_trans, T_to_quat_trans, quat_slerp
 from nuav2.scene import SceneLog
+from nuav2.track_smoothing import smooth_box_poses
 
 DEFAULT_TOLERANCE_NS = 60_000_000
 
@@ -42,7 +43,9 @@ class BoxTracks:
     size_lwh: F64  # (K, 3)
 
     @staticmethod
-    def from_scene(scene: SceneLog) -> BoxTracks:
+    def from_scene(scene: SceneLog, smooth: bool = False) -> BoxTracks:
+        """All tracks of ``scene`` in the city frame; ``smooth`` takes per-frame label jitter out
+        (:mod:`nuav2.track_smoothing`) and gives each track its median size."""
         ann = scene.annotations
         lo = scene.pose_timestamps_ns[0] - scene.max_pose_extrapolation_ns
         hi = scene.pose_timestamps_ns[-1] + scene.max_pose_extrapolation_ns
@@ -63,9 +66,15 @@ class BoxTracks:
         order, ts, trk = order[keep], ts[keep], trk[keep]
         city_T_ego = scene.city_T_ego_at(ts).reshape(-1, 4, 4)
         ego_T_box = T_from_quat_trans(ann.ego_q_box[order], ann.ego_t_box[order])
-        q, t = T_to_quat_trans(city_T_ego @ ego_T_box)
+        city_T_box = city_T_ego @ ego_T_box
+        size = np.asarray(ann.size_lwh, np.float64)[order]
         starts = np.searchsorted(trk, np.arange(len(track_ids) + 1)).astype(np.int64)
-        return BoxTracks(track_ids, starts, ts, q, t, np.asarray(ann.size_lwh, np.float64)[order])
+        if smooth:
+            for a, b in zip(starts[:-1], starts[1:]):
+                city_T_box[a:b] = smooth_box_poses(ts[a:b], city_T_box[a:b])
+                size[a:b] = np.median(size[a:b], axis=0)
+        q, t = T_to_quat_trans(city_T_box)
+        return BoxTracks(track_ids, starts, ts, q, t, size)
 
     def __len__(self) -> int:
         return len(self.track_ids)
