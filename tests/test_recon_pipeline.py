@@ -132,9 +132,12 @@ def test_training_is_deterministic_and_resumes_exactly(tiny_scene, tmp_path):
     cfg = TrainConfig(iterations=24, pyramid=(0.5, 1.0), pyramid_until=(0.5,),
                       densify=DensifyConfig(start=8, every=8, budget=25_000, reset_every=16))
 
+    cfg = replace(cfg, eval_every=6, patience=0)
+    train, held = split_views(views, 5)
+
     def fresh() -> Trainer:
-        init = initial_scene(tiny_scene, views, TINY_INIT, sh_degree=1)
-        return Trainer(init.scene, tiny_scene, views, init.sky_masks, cfg)
+        init = initial_scene(tiny_scene, train, TINY_INIT, sh_degree=1, other_views=held)
+        return Trainer(init.scene, tiny_scene, train, init.sky_masks, cfg, validation=held)
 
     a = fresh()
     a.run(progress=False)
@@ -150,6 +153,7 @@ def test_training_is_deterministic_and_resumes_exactly(tiny_scene, tmp_path):
         assert torch.equal(t, c.splat.background.tensors()[name]), name
     assert torch.equal(a.splat.sky.texture, c.splat.sky.texture)
     assert a.losses == c.losses
+    assert len(a.validation) == 4 and a.validation == c.validation  # held-out PSNR every 6 steps, resumed
 
 
 def test_reconstruct_resume_from_checkpoint_dir(tiny_scene, tmp_path):
@@ -251,3 +255,31 @@ def test_render_source_through_the_real_writer_and_devkit(trained, tiny_scene, t
                                  tiny_world)
     mean_psnr = float(np.mean([np.mean(s.psnr_db) for s in scores.values()]))
     assert set(scores) == set(out_rig.camera_channels) and mean_psnr >= 19.0  # JPEG q95 costs a little
+
+
+def test_training_stops_when_heldout_psnr_stops_improving(tiny_scene):
+    """Patience rule: densification ends at the first plateau of held-out PSNR, training at the second,
+    long before the iteration cap."""
+    cfg = tiny_config(iterations=3000)
+    cfg = replace(cfg, train=replace(cfg.train, eval_every=20, patience=2, min_delta_db=0.3,
+                                     densify=replace(cfg.train.densify, stop=2400)))
+    splat = reconstruct(tiny_scene, cfg, progress=False)
+    rep = splat.info["train"]
+    assert rep["stop_reason"] == "plateau" and rep["steps"] < 1000
+    assert rep["densify_stopped_at"] is not None and rep["densify_stopped_at"] < rep["steps"]
+    vals = [v for _, v in rep["validation"]]
+    assert len(vals) == rep["steps"] // 20
+    assert max(vals[-2:]) <= max(vals[:-2]) + 0.3  # the last two measurements brought no 0.3 dB gain
+    assert len(splat.info["validation_views"]) == 8  # spread over the held-out images
+
+
+def test_training_reports_progress_as_log_lines_when_not_a_terminal(tiny_scene, caplog):
+    import logging
+
+    cfg = tiny_config(iterations=20)
+    cfg = replace(cfg, train=replace(cfg.train, eval_every=10))
+    with caplog.at_level(logging.INFO, logger="nuav2.recon"):
+        reconstruct(tiny_scene, cfg, progress=True)
+    lines = [r.getMessage() for r in caplog.records if r.getMessage().startswith("train ")]
+    assert lines and "20/20 it" in lines[-1] and "held-out psnr" in lines[-1] and "gaussians" in lines[-1]
+    assert all("\r" not in line for line in lines)

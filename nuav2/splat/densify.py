@@ -58,6 +58,14 @@ class DensifyStrategy:
     extent: float
     stats: dict[str, _Stats] = field(default_factory=dict)
     history: list[dict] = field(default_factory=list)
+    stopped_at: int | None = None  # densification ended here, before ``cfg.stop`` (validation plateau)
+
+    @property
+    def stop(self) -> int:
+        return self.cfg.stop if self.stopped_at is None else min(self.cfg.stop, self.stopped_at)
+
+    def active(self, step: int) -> bool:
+        return step < self.stop
 
     def _stats_for(self, name: str, n: int) -> _Stats:
         st = self.stats.get(name)
@@ -79,11 +87,11 @@ class DensifyStrategy:
 
     def due(self, step: int) -> bool:
         c = self.cfg
-        return c.start <= step < c.stop and step % c.every == 0 and step > 0
+        return c.start <= step < self.stop and step % c.every == 0 and step > 0
 
     def reset_due(self, step: int) -> bool:
         c = self.cfg
-        return c.reset_every > 0 and step > 0 and step % c.reset_every == 0 and step < c.stop
+        return c.reset_every > 0 and step > 0 and step % c.reset_every == 0 and step < self.stop
 
     def step(self, step: int, sets: dict[str, GaussianSet], optimizer: torch.optim.Optimizer,
              boxes: dict[str, np.ndarray] | None = None) -> dict[str, GaussianSet]:

@@ -44,7 +44,8 @@ class Progress:
         self.bar = None
         self.lines = enabled and not is_terminal(stream)
         if enabled and not self.lines:
-            self.bar = tqdm(total=total, initial=initial, desc=desc, unit=unit, file=stream, leave=False)
+            self.bar = tqdm(total=total, initial=initial, desc=desc, unit=unit, file=stream, leave=False,
+                            mininterval=min(self.every_s, 0.1))
         self.t0 = self.t_last = time.perf_counter()
         self.n0 = self.n
 

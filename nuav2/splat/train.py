@@ -67,12 +67,13 @@ class TrainConfig:
     checkpoint_every: int = 0  # 0: only at the end (when a checkpoint dir is given)
     time_budget_s: float | None = None  # stop early once training has used this much wall time
     # Early stop (with validation views): every ``eval_every`` steps the mean PSNR of up to
-    # ``eval_views`` held-out images is measured; after ``patience`` measurements in a row without a
-    # gain of ``min_delta_db`` over the best so far, training stops (not before ``min_iterations``).
-    eval_every: int = 100
-    eval_views: int = 12
+    # ``eval_views`` held-out images is measured. After ``patience`` measurements in a row without a
+    # gain of ``min_delta_db`` over the best so far, densification ends (if still on), and at the next
+    # such plateau training ends (not before ``min_iterations``).
+    eval_every: int = 50
+    eval_views: int = 8
     patience: int = 3  # 0: never stop early (validation is still measured and reported)
-    min_delta_db: float = 0.05
+    min_delta_db: float = 0.1
     min_iterations: int = 0
 
 
@@ -225,6 +226,7 @@ class TrainReport:
     stopped_early: bool = False
     losses: list[float] = field(default_factory=list)
     stop_reason: str = "iterations"  # "iterations", "plateau" (validation PSNR) or "time budget"
+    densify_stopped_at: int | None = None  # densification ended early here (validation plateau)
     validation: list[list[float]] = field(default_factory=list)  # [step, mean held-out PSNR dB]
 
     def to_dict(self) -> dict:
@@ -346,13 +348,16 @@ class Trainer:
             return
         v = self.validate()
         self.validation.append([self.step, v])
-        if v > self.best_val + cfg.min_delta_db:
+        if v > self.best_val + cfg.min_delta_db:  # (the best moves only on a real gain, as Keras does)
             self.best_val, self.bad_evals = v, 0
         else:
-            self.best_val = max(self.best_val, v)
             self.bad_evals += 1
         if cfg.patience > 0 and self.bad_evals >= cfg.patience and self.step >= cfg.min_iterations:
-            self.plateau = True
+            if self.strategy.active(self.step):  # more Gaussians stopped helping: refine what there is
+                self.strategy.stopped_at = self.step
+                self.bad_evals = 0
+            else:
+                self.plateau = True
 
     def run(self, *, progress: bool = True, checkpoint_dir: Path | None = None,
             stop_at: int | None = None) -> TrainReport:
@@ -391,7 +396,8 @@ class Trainer:
                 raise FloatingPointError("training produced non-finite Gaussian parameters")
         return TrainReport(self.step, time.perf_counter() - t0, float(ema_psnr or 0.0),
                            self.splat.num_gaussians(), list(self.strategy.history), reason != "iterations",
-                           list(self.losses), reason, [list(x) for x in self.validation])
+                           list(self.losses), reason, self.strategy.stopped_at,
+                           [list(x) for x in self.validation])
 
     # ---- checkpoint / resume ----
     def state(self) -> dict:
@@ -400,6 +406,7 @@ class Trainer:
                 "torch_rng": torch.get_rng_state(), "losses": list(self.losses),
                 "densify_stats": {k: (v.grad, v.count) for k, v in self.strategy.stats.items()},
                 "densify_history": list(self.strategy.history),
+                "densify_stopped_at": self.strategy.stopped_at,
                 "validation": [list(x) for x in self.validation], "best_val": self.best_val,
                 "bad_evals": self.bad_evals, "plateau": self.plateau}
 
@@ -431,6 +438,7 @@ class Trainer:
         self.losses = list(st.get("losses", []))
         self.strategy.stats = {k: _Stats(g.clone(), c.clone()) for k, (g, c) in st["densify_stats"].items()}
         self.strategy.history = list(st["densify_history"])
+        self.strategy.stopped_at = st.get("densify_stopped_at")
         self.boxes = {f"obj:{o.track.track_id}": o.track.size_lwh for o in self.splat.objects}
         self.validation = [list(x) for x in st.get("validation", [])]
         self.best_val = float(st.get("best_val", -math.inf))
