@@ -69,3 +69,21 @@ def test_image_quality_from_rendered_depth():
     # Sky pixels (alpha 0) in the source's field of view count as covered.
     sky = image_quality(depth, np.zeros_like(alpha), cam, scene_T_cam, cov)
     assert sky.solid_fraction == 0.0 and sky.confidence == 1.0
+
+
+def test_a_non_rigid_actor_in_view_lowers_confidence():
+    """A pedestrian box 10 m ahead covering the image centre: its samples never count as covered."""
+    cov = one_source()
+    cam = CameraSpec("T", 100, 60, K, np.eye(4))
+    scene_T_cam = make_T(CAM_R_FORWARD_X, [0.5, 0.0, 0.0])
+    depth = np.full((60, 100), 10.0, np.float32)
+    alpha = np.ones((60, 100), np.float32)
+    # The box spans y and z in [-1, 1] (x 1.15 grown) at x = 10.5 (camera depth 10): 11.5 x 11.5 px at f = 50.
+    box = make_T(np.eye(3), [10.5, 0.0, 0.0])[None]
+    q = image_quality(depth, alpha, cam, scene_T_cam, cov, nonrigid_boxes=(box, np.array([[1.0, 2.0, 2.0]])))
+    expect = 11.5 * 11.5 / (100 * 60)  # share of the image inside the projected box
+    assert 0.7 * expect < q.nonrigid_fraction < 1.3 * expect
+    assert q.confidence == 1.0 - q.nonrigid_fraction
+    far = make_T(np.eye(3), [40.0, 0.0, 0.0])[None]  # behind the rendered surface: not in view
+    assert image_quality(depth, alpha, cam, scene_T_cam, cov,
+                         nonrigid_boxes=(far, np.array([[1.0, 2.0, 2.0]]))).nonrigid_fraction == 0.0

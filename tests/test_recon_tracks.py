@@ -7,11 +7,11 @@ import math
 import numpy as np
 import torch
 
+from nuav2.actor_tracks import smooth_box_poses
 from nuav2.geometry import make_T
 from nuav2.rig import CameraSpec
 from nuav2.splat.losses import photometric_loss
 from nuav2.splat.scene_model import GaussianSet, ObjectModel, SkyModel, SplatScene, TrackPoses
-from nuav2.track_smoothing import smooth_box_poses
 
 CAM_R_FORWARD_X = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
 
@@ -121,3 +121,25 @@ def test_learned_corrections_pull_jittered_boxes_back():
     before = np.abs(noisy[:, 1, 3] - truth[:, 1, 3]).mean()
     after = np.abs(tr.scene_T_box[:, 1, 3] - truth[:, 1, 3]).mean()
     assert after < 0.5 * before, (before, after)
+
+
+def test_non_rigid_actors_become_time_segments_that_tile_their_presence():
+    from nuav2.splat.actors import object_tracks, segment_track
+    from nuav2.splat.init import InitConfig
+
+    ts, T = track(n=20)  # 1.9 s, moving
+    walker = TrackPoses("p", "PEDESTRIAN", np.array([0.6, 0.6, 1.7]), ts, T)
+    car = TrackPoses("c", "REGULAR_VEHICLE", np.array([4.5, 1.9, 1.6]), ts, T)
+    parked = TrackPoses("q", "PEDESTRIAN", np.array([0.6, 0.6, 1.7]), ts, np.repeat(T[:1], 20, axis=0))
+    objs = object_tracks([walker, car, parked], InitConfig(nonrigid_segment_s=0.2))
+    keys = [o.key for o in objs]
+    assert "c" in keys and not any(k.startswith("q") for k in keys)  # a standing pedestrian stays background
+    segs = [o for o in objs if o.track_id == "p"]
+    assert len(segs) == len(segment_track(walker, 200_000_000)) >= 9 and keys.count("c") == 1
+    # Every time of the walker's presence belongs to exactly one segment; outside it, to none.
+    lo, hi = int(ts[0]) - walker.presence_margin_ns, int(ts[-1]) + walker.presence_margin_ns
+    for t in np.linspace(lo, hi, 97).astype(np.int64):
+        assert sum(s.present(int(t)) for s in segs) == 1
+    assert not any(s.present(lo - 1) or s.present(hi + 1) for s in segs)
+    # Rigid when segmenting is off.
+    assert [o.key for o in object_tracks([walker], InitConfig(nonrigid_segment_s=0.0))] == ["p"]

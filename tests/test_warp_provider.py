@@ -12,7 +12,7 @@ from nuscenes.nuscenes import NuScenes
 
 from nuav2.bench.paint_alignment import paint_offsets_px, painted_boundary_points
 from nuav2.evaluate.image_metrics import psnr
-from nuav2.geometry import egoS_T_egoT_from_heights
+from nuav2.geometry import egoS_T_egoT_from_heights, quat_to_rot
 from nuav2.nuscenes_db.images import ImageSourceError
 from nuav2.nuscenes_db.writer import WriterOptions, write_log
 from nuav2.rig import load_rig
@@ -182,3 +182,26 @@ def test_without_lidar_or_boxes_the_ground_still_warps(synth, rig):
     lower = np.zeros(out.coverage.shape, bool)
     lower[-cam.height // 4:] = True  # the road just ahead: ground only, nothing on it
     assert psnr(out.rgb, gt, mask=lower & out.coverage) > 22.0
+
+
+def test_a_pedestrian_in_view_is_recorded_and_lowers_the_confidence(synth, rig):
+    """The walking pedestrian's box pixels are marked non-rigid and left out of the recorded confidence."""
+    from nuav2.geometry import make_T
+
+    scene, _ = synth
+    ann = scene.annotations
+    t = int(scene.sweep_timestamps_ns[4])
+    rows = [r for r in ann.at(t) if str(ann.category[r]) == "PEDESTRIAN"]
+    assert rows, "the default synthetic world has a walking pedestrian"
+    ego_T_box = make_T(quat_to_rot(ann.ego_q_box[rows[0]]), ann.ego_t_box[rows[0]])
+    centre = (scene.city_T_ego_at(t) @ ego_T_box)[:3, 3]
+    # A camera 6 m west of the pedestrian, at chest height, looking east (+x) at it.
+    cam = rig.camera("CAM_FRONT")
+    R = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+    city_T_cam = make_T(R, centre + [-6.0, 0.0, 0.3])
+    renderer = WarpRenderer(scene)
+    out = renderer.render(cam, city_T_cam, t)
+    assert 0.01 < out.nonrigid.mean() < 0.5
+    renderer("CAM_FRONT", cam, city_T_cam, t)
+    assert renderer.nonrigid["CAM_FRONT"][t] == pytest.approx(out.nonrigid.mean())
+    assert renderer.coverage["CAM_FRONT"][t] == pytest.approx((out.coverage & ~out.nonrigid).mean())

@@ -1,23 +1,55 @@
-"""Annotated tracks as the reconstruction sees them: box poses in the scene frame, and which move."""
+"""Annotated tracks as the reconstruction sees them: box poses in the scene frame, which move, which bend.
+
+A moving rigid actor (a car) is one object in its box frame for the whole log. A moving
+*non-rigid* actor (a walking pedestrian, a cyclist: :data:`nuav2.actor_tracks.NON_RIGID`) changes
+shape inside its box, and one rigid Gaussian set for the whole log would average its limbs into a smear; it is
+modelled instead as consecutive short time segments (:func:`segment_track`), each its own object
+seeded and trained only from the sweeps and images of its segment (a per-frame fallback).
+"""
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import TYPE_CHECKING
 
 import numpy as np
 
+from nuav2.actor_tracks import is_non_rigid, smooth_box_poses
 from nuav2.geometry import F64, T_from_quat_trans
 from nuav2.scene import SceneLog
 from nuav2.splat.scene_model import TrackPoses
-from nuav2.track_smoothing import smooth_box_poses
 
 if TYPE_CHECKING:
     from nuav2.splat.init import InitConfig
 
+def segment_track(track: TrackPoses, segment_ns: int) -> list[TrackPoses]:
+    """A track cut into consecutive time segments of ``segment_ns`` (the last one takes the rest), each
+    present only in its own half-open window, together covering the track's presence."""
+    start = int(track.timestamps_ns[0]) - track.presence_margin_ns
+    end = int(track.timestamps_ns[-1]) + track.presence_margin_ns + 1
+    n = max(1, int((end - start) // max(1, int(segment_ns))))
+    edges = [start + k * int(segment_ns) for k in range(n)] + [end]
+    return [replace(track, segment=k, present_from_ns=a, present_until_ns=b, pose_delta=None)
+            for k, (a, b) in enumerate(zip(edges[:-1], edges[1:]))]
+
+
+def object_tracks(tracks: list[TrackPoses], cfg: InitConfig) -> list[TrackPoses]:
+    """The objects to model: every moving track, non-rigid ones cut into ``cfg.nonrigid_segment_s`` segments
+    (0: kept whole, as rigid)."""
+    out = []
+    for t in tracks:
+        if not is_moving(t, cfg):
+            continue
+        if cfg.nonrigid_segment_s > 0 and is_non_rigid(t.category):
+            out += segment_track(t, int(cfg.nonrigid_segment_s * 1e9))
+        else:
+            out.append(t)
+    return out
+
 
 def build_tracks(scene: SceneLog, scene_T_city: F64, smooth: bool = False) -> list[TrackPoses]:
     """Every annotated track's box poses in the scene frame, sorted by track id; ``smooth`` takes per-frame
-    label jitter out (:mod:`nuav2.track_smoothing`)."""
+    label jitter out (:mod:`nuav2.actor_tracks`)."""
     ann = scene.annotations
     tracks = []
     for tid in sorted(set(ann.track_id.tolist())):

@@ -20,7 +20,7 @@ import numpy as np
 from nuav2.exposure import ExposureConfig, ExposureModel
 from nuav2.geometry import F64, T_inverse
 from nuav2.scene import SceneLog
-from nuav2.splat.actors import build_tracks, is_moving
+from nuav2.splat.actors import build_tracks, object_tracks
 from nuav2.splat.budget import (
     TIER_FAR,
     TIER_GROUND,
@@ -89,7 +89,8 @@ class InitConfig:
     motion_min_path_m: float = 1.0  # a track moves if its path is longer than this ...
     motion_min_std_m: float = 0.3  # ... and its position spread (largest axis std) exceeds this
     motion_min_observations: int = 2
-    smooth_tracks: bool = True  # take per-frame label jitter out of the box tracks (nuav2.track_smoothing)
+    smooth_tracks: bool = True  # take per-frame label jitter out of the box tracks (nuav2.actor_tracks)
+    nonrigid_segment_s: float = 0.2  # moving pedestrians/cyclists: one object per segment (0: rigid)
     exposure: ExposureConfig | None = field(default_factory=ExposureConfig)  # None: images used as taken
     exposure_points: int = 30_000  # background seeds the exposure solve looks at
     budget: BudgetConfig | None = field(default_factory=BudgetConfig)  # None: fixed budget, uniform thinning
@@ -125,7 +126,7 @@ def initial_scene(scene: SceneLog, views: list[SourceView], cfg: InitConfig, *, 
     city_T_scene = scene_frame_for(scene.city_T_ego[0])
     scene_T_city = T_inverse(city_T_scene)
     tracks = build_tracks(scene, scene_T_city, smooth=cfg.smooth_tracks)
-    moving = {t.track_id: t for t in tracks if is_moving(t, cfg)}
+    moving = {t.key: t for t in object_tracks(tracks, cfg)}
     agg = aggregate_lidar(scene, scene_T_city, moving, cfg, progress=progress)
     path_xy = (scene_T_city[None] @ scene.city_T_ego)[:, :2, 3]
     bg_lidar = banded_downsample(agg.background, path_xy, cfg.voxel_m, cfg.voxel_bands_m)
@@ -203,8 +204,11 @@ def initial_scene(scene: SceneLog, views: list[SourceView], cfg: InitConfig, *, 
             sky.texture.copy_(torch.log(p / (1 - p)))
     splat = SplatScene(city_T_scene, background, objects, sky)
     n_seeds = len(background) + sum(len(o.gaussians) for o in objects)
-    budget = scene_budget(n_seeds, len(objects), cfg.budget) if cfg.budget is not None else None
-    stats = {"tracks": len(tracks), "moving_tracks": len(moving), "objects": len(objects),
+    n_moving = len({o.track.track_id for o in objects})
+    budget = scene_budget(n_seeds, n_moving, cfg.budget) if cfg.budget is not None else None
+    stats = {"tracks": len(tracks), "moving_tracks": len({t.track_id for t in moving.values()}),
+             "objects": len(objects),
+             "non_rigid_segments": sum(t.segment is not None for t in moving.values()),
              "lidar_sweeps": agg.n_sweeps, "lidar_points": agg.n_points,
              "background_lidar_seeds": int((kind == LIDAR).sum()),
              "facade_seeds": int((kind == FACADE).sum()),

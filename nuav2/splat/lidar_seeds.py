@@ -39,7 +39,10 @@ def aggregate_lidar(scene: SceneLog, scene_T_city: F64, moving: dict[str, TrackP
     """Move sweeps into the scene frame, routing points in moving boxes to their tracks."""
     ann = scene.annotations
     bg_parts: list[F64] = []
-    obj_parts: dict[str, list[F64]] = {tid: [] for tid in moving}
+    obj_parts: dict[str, list[F64]] = {key: [] for key in moving}
+    by_id: dict[str, list[TrackPoses]] = {}
+    for track in moving.values():
+        by_id.setdefault(track.track_id, []).append(track)
     sweeps = scene.lidar_sweeps[:: max(1, cfg.sweep_stride)]
     lo, hi = np.asarray(cfg.ego_box_min), np.asarray(cfg.ego_box_max)
     n_points = 0
@@ -54,15 +57,15 @@ def aggregate_lidar(scene: SceneLog, scene_T_city: F64, moving: dict[str, TrackP
         in_any = np.zeros(len(pts), bool)
         scene_T_ego = scene_T_city @ scene.city_T_ego_at(int(ref.timestamp_ns))
         for row in ann.at(int(ref.timestamp_ns)):
-            track = moving.get(str(ann.track_id[row]))
-            if track is None:
-                continue
-            # the track's (smoothed) pose, not the raw label: its points must not carry the label jitter
-            box_T_ego = T_inverse(track.scene_T_box_at(int(ref.timestamp_ns))) @ scene_T_ego
-            inside = points_in_box(pts, box_T_ego, track.size_lwh, cfg.box_margin_m) & ~in_any
-            if np.any(inside):  # a point in two overlapping boxes goes to the first only
-                obj_parts[track.track_id].append(pts[inside] @ box_T_ego[:3, :3].T + box_T_ego[:3, 3])
-            in_any |= inside
+            for track in by_id.get(str(ann.track_id[row]), ()):
+                if not track.present(int(ref.timestamp_ns)):
+                    continue  # another segment of a non-rigid actor
+                # the track's (smoothed) pose, not the raw label: its points must not carry the jitter
+                box_T_ego = T_inverse(track.scene_T_box_at(int(ref.timestamp_ns))) @ scene_T_ego
+                inside = points_in_box(pts, box_T_ego, track.size_lwh, cfg.box_margin_m) & ~in_any
+                if np.any(inside):  # a point in two overlapping boxes goes to the first only
+                    obj_parts[track.key].append(pts[inside] @ box_T_ego[:3, :3].T + box_T_ego[:3, 3])
+                in_any |= inside
         rest = pts[~in_any]
         bg_parts.append(rest @ scene_T_ego[:3, :3].T + scene_T_ego[:3, 3])
     bar.close()

@@ -10,7 +10,10 @@ than the target camera (distance ratio <= ``max_distance_ratio``: farther means 
 A sky direction is covered if some source camera's field of view contains it.
 
 confidence = covered samples / all samples, in [0, 1]. Moving objects are judged where they
-are at the target time (their own motion is not modelled here).
+are at the target time (their own motion is not modelled here). Samples on a non-rigid actor
+(a walking pedestrian, a cyclist: their limbs are only approximated, see
+:mod:`nuav2.splat.actors`) never count as covered, so an image such an actor fills is trusted
+less; their share is recorded as ``nonrigid_fraction``.
 """
 
 from __future__ import annotations
@@ -43,6 +46,7 @@ class ImageQuality:
     solid_fraction: float  # of the samples, covered by Gaussians (the rest is sky)
     alpha_mean: float
     samples: int
+    nonrigid_fraction: float = 0.0  # of the samples, on a non-rigid actor (not counted as covered)
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -131,9 +135,20 @@ class SourceCoverage:
         return out
 
 
+def in_boxes(points: F64, scene_T_box: F64, size_lwh: F64, grow: float = 0.1) -> np.ndarray:
+    """(N,) bool: points inside any box (grown by ``grow`` x size + 5 cm on each side)."""
+    inside = np.zeros(len(points), bool)
+    for T, size in zip(np.asarray(scene_T_box).reshape(-1, 4, 4), np.asarray(size_lwh).reshape(-1, 3)):
+        p = (points - T[:3, 3]) @ T[:3, :3]
+        inside |= np.all(np.abs(p) <= 0.5 * size * (1 + grow) + 0.05, axis=1)
+    return inside
+
+
 def image_quality(rendered_depth: np.ndarray, rendered_alpha: np.ndarray, cam: CameraSpec, scene_T_cam: F64,
-                  coverage: SourceCoverage, cfg: QualityConfig = QualityConfig()) -> ImageQuality:
-    """Confidence of one rendered target image from its depth and alpha (H, W) at ``cam``'s size."""
+                  coverage: SourceCoverage, cfg: QualityConfig = QualityConfig(),
+                  nonrigid_boxes: tuple[F64, F64] | None = None) -> ImageQuality:
+    """Confidence of one rendered target image from its depth and alpha (H, W) at ``cam``'s size;
+    ``nonrigid_boxes`` (scene_T_box (B, 4, 4), sizes (B, 3)) are the non-rigid actors at the image's time."""
     h, w = rendered_alpha.shape
     gx, gy = cfg.grid
     us = (np.arange(gx) + 0.5) * w / gx - 0.5
@@ -152,4 +167,9 @@ def image_quality(rendered_depth: np.ndarray, rendered_alpha: np.ndarray, cam: C
     dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
     pts = np.where(solid[:, None], pts_cam @ R.T + c, dirs)
     cov = coverage.covered(pts, c, ~solid, cfg)
-    return ImageQuality(float(cov.mean()), float(solid.mean()), float(rendered_alpha.mean()), int(len(cov)))
+    nonrigid = np.zeros(len(cov), bool)
+    if nonrigid_boxes is not None and len(nonrigid_boxes[0]):
+        nonrigid[solid] = in_boxes(pts[solid], *nonrigid_boxes)
+    cov &= ~nonrigid
+    return ImageQuality(float(cov.mean()), float(solid.mean()), float(rendered_alpha.mean()), int(len(cov)),
+                        float(nonrigid.mean()))

@@ -61,16 +61,16 @@ class SplatRenderer:
         with torch.no_grad():
             return self.splat.render(camera, np.asarray(city_T_cam, np.float64), int(timestamp_ns))
 
-    def quality(self, camera: CameraSpec, city_T_cam: F64, out) -> ImageQuality | None:
+    def quality(self, camera: CameraSpec, city_T_cam: F64, out, timestamp_ns: int) -> ImageQuality | None:
         if self.source_coverage is None:
             return None
         scene_T_cam = self.splat.scene_T_city @ np.asarray(city_T_cam, np.float64)
         return image_quality(out.depth.numpy(), out.alpha.numpy(), camera, scene_T_cam, self.source_coverage,
-                             self.quality_cfg)
+                             self.quality_cfg, nonrigid_boxes_at(self.splat, timestamp_ns))
 
     def __call__(self, channel: str, camera: CameraSpec, city_T_cam: F64, timestamp_ns: int) -> np.ndarray:
         out = self.render(camera, city_T_cam, timestamp_ns)
-        q = self.quality(camera, city_T_cam, out)
+        q = self.quality(camera, city_T_cam, out, timestamp_ns)
         if q is not None:
             self.coverage.setdefault(channel, {})[int(timestamp_ns)] = q.confidence
             self.records[sample_data_key(channel, timestamp_ns)] = {
@@ -84,8 +84,20 @@ class SplatRenderer:
             return 1.0
         small = camera.scaled(scale)
         out = self.render(small, city_T_cam, timestamp_ns)
-        q = self.quality(small, city_T_cam, out)
+        q = self.quality(small, city_T_cam, out, timestamp_ns)
         return 1.0 if q is None else q.confidence
+
+
+def nonrigid_boxes_at(splat: SplatScene, timestamp_ns: int) -> tuple[F64, F64]:
+    """(scene_T_box (B, 4, 4), sizes (B, 3)) of the modelled non-rigid actors present at a time."""
+    from nuav2.actor_tracks import is_non_rigid
+
+    tracks = [o.track for o in splat.objects
+              if is_non_rigid(o.track.category) and o.track.present(timestamp_ns)]
+    if not tracks:
+        return np.zeros((0, 4, 4)), np.zeros((0, 3))
+    return (np.stack([t.scene_T_box_at(int(timestamp_ns)) for t in tracks]),
+            np.stack([np.asarray(t.size_lwh, np.float64) for t in tracks]))
 
 
 def scene_fingerprint(splat: SplatScene) -> str:

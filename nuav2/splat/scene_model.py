@@ -166,9 +166,21 @@ class TrackPoses:
     # Learned per-frame corrections (T, 4): dx, dy, dz (box frame, metres) and dyaw (radians) applied
     # after each annotated pose, interpolated linearly in between (None: the annotated poses as they are).
     pose_delta: torch.Tensor | None = field(default=None, repr=False)
+    # A non-rigid actor is modelled as consecutive time segments, each its own object present only in
+    # [present_from_ns, present_until_ns) (nuav2.splat.actors.segment_track).
+    segment: int | None = None
+    present_from_ns: int | None = None
+    present_until_ns: int | None = None
+
+    @property
+    def key(self) -> str:
+        """Unique name of the object: the track id, plus ``#k`` for segment k of a non-rigid actor."""
+        return self.track_id if self.segment is None else f"{self.track_id}#{self.segment}"
 
     def present(self, timestamp_ns: int) -> bool:
         t = int(timestamp_ns)
+        if self.present_from_ns is not None and self.present_until_ns is not None:
+            return self.present_from_ns <= t < self.present_until_ns
         return int(self.timestamps_ns[0]) - self.presence_margin_ns <= t <= int(self.timestamps_ns[-1]) + \
             self.presence_margin_ns
 
@@ -204,7 +216,8 @@ class TrackPoses:
     def state(self) -> dict:
         d = {"track_id": self.track_id, "category": self.category, "size_lwh": self.size_lwh.tolist(),
              "timestamps_ns": self.timestamps_ns.tolist(), "scene_T_box": self.scene_T_box.tolist(),
-             "presence_margin_ns": self.presence_margin_ns}
+             "presence_margin_ns": self.presence_margin_ns, "segment": self.segment,
+             "present_from_ns": self.present_from_ns, "present_until_ns": self.present_until_ns}
         if self.pose_delta is not None:
             d["pose_delta"] = self.pose_delta.detach().clone()
         return d
@@ -215,7 +228,8 @@ class TrackPoses:
         delta = None if delta is None else delta.detach().clone().float()
         return TrackPoses(d["track_id"], d["category"], np.asarray(d["size_lwh"], np.float64),
                           np.asarray(d["timestamps_ns"], np.int64), np.asarray(d["scene_T_box"], np.float64),
-                          int(d["presence_margin_ns"]), delta)
+                          int(d["presence_margin_ns"]), delta, d.get("segment"), d.get("present_from_ns"),
+                          d.get("present_until_ns"))
 
 
 @dataclass
@@ -377,7 +391,7 @@ class SplatScene:
             parts.append({"means": means @ R.T + t,
                           "quats": quat_mul_torch(q_box.expand_as(g.quats), g.quats),
                           "log_scales": g.log_scales, "opacity_logits": g.opacity_logits, "sh": g.sh})
-            slices[obj.track.track_id] = slice(start, start + len(g))
+            slices[obj.track.key] = slice(start, start + len(g))
             start += len(g)
         if len(parts) == 1:
             return parts[0], slices

@@ -169,14 +169,14 @@ def scene_extent(views: list[SourceView], minimum: float) -> float:
 def named_sets(splat: SplatScene) -> dict[str, GaussianSet]:
     out = {"background": splat.background}
     for o in splat.objects:
-        out[f"obj:{o.track.track_id}"] = o.gaussians
+        out[f"obj:{o.track.key}"] = o.gaussians
     return out
 
 
 def store_sets(splat: SplatScene, sets: dict[str, GaussianSet]) -> None:
     splat.background = sets["background"]
     for o in splat.objects:
-        o.gaussians = sets[f"obj:{o.track.track_id}"]
+        o.gaussians = sets[f"obj:{o.track.key}"]
 
 
 def base_lr(group_name: str, cfg: TrainConfig, extent: float) -> float:
@@ -204,7 +204,7 @@ def build_optimizer(splat: SplatScene, cfg: TrainConfig, extent: float) -> torch
         if o.track.pose_delta is not None:
             o.track.pose_delta.requires_grad_(True)
             groups.append({"params": [o.track.pose_delta], "lr": cfg.lr_pose,
-                           "name": f"pose:{o.track.track_id}"})
+                           "name": f"pose:{o.track.key}"})
     return torch.optim.Adam(groups, lr=1e-3, eps=1e-15, fused=True)
 
 
@@ -261,7 +261,7 @@ class Trainer:
                               lidar_depth_samples(scene, v, scene_T_city, sweep_cache=cache)) for v in views]
         self.optimizer = build_optimizer(splat, cfg, self.extent)
         self.strategy = DensifyStrategy(cfg.densify, self.extent)
-        self.boxes = {f"obj:{o.track.track_id}": o.track.size_lwh for o in splat.objects}
+        self.boxes = {f"obj:{o.track.key}": o.track.size_lwh for o in splat.objects}
         self.step = 0
         self.losses: list[float] = []
 
@@ -439,7 +439,7 @@ class Trainer:
         self.strategy.stats = {k: _Stats(g.clone(), c.clone()) for k, (g, c) in st["densify_stats"].items()}
         self.strategy.history = list(st["densify_history"])
         self.strategy.stopped_at = st.get("densify_stopped_at")
-        self.boxes = {f"obj:{o.track.track_id}": o.track.size_lwh for o in self.splat.objects}
+        self.boxes = {f"obj:{o.track.key}": o.track.size_lwh for o in self.splat.objects}
         self.validation = [list(x) for x in st.get("validation", [])]
         self.best_val = float(st.get("best_val", -math.inf))
         self.bad_evals, self.plateau = int(st.get("bad_evals", 0)), bool(st.get("plateau", False))

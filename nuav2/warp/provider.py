@@ -19,6 +19,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from nuav2.actor_tracks import is_non_rigid
 from nuav2.atomic import atomic_write_json
 from nuav2.exposure import ExposureConfig, ExposureModel
 from nuav2.geometry import F64, T_inverse
@@ -48,7 +49,7 @@ class WarpConfig:
     background: tuple[float, float, float] = (0.5, 0.5, 0.5)
     cache_mb: int = 1024  # source views (image + proxy) kept for reuse across target cameras
     harmonise: ExposureConfig | None = field(default_factory=ExposureConfig)  # None: sources as taken
-    smooth_tracks: bool = True  # take per-frame label jitter out of the box tracks (nuav2.track_smoothing)
+    smooth_tracks: bool = True  # take per-frame label jitter out of the box tracks (nuav2.actor_tracks)
 
     def __post_init__(self) -> None:
         if self.fill not in FILL_MODES:
@@ -68,6 +69,7 @@ class WarpOutput:
     rgb: np.ndarray  # float32 (H, W, 3), filled
     coverage: np.ndarray  # bool (H, W): some source saw the pixel
     n_sources: int  # source images used
+    nonrigid: np.ndarray | None = None  # bool (H, W): on a non-rigid actor's box (limbs only approximated)
 
 
 def half_diagonal_fov(camera: CameraSpec) -> float:
@@ -113,6 +115,7 @@ class WarpRenderer:
         self._view_bytes = 0
         self._valid: dict[str, np.ndarray | None] = {}
         self.coverage: dict[str, dict[int, float]] = {}  # channel -> timestamp_ns -> covered fraction
+        self.nonrigid: dict[str, dict[int, float]] = {}  # channel -> timestamp_ns -> non-rigid actor share
         self._exposure: tuple[ExposureModel, dict[tuple[str, int], int]] | None = None
 
     # -- geometry -------------------------------------------------------------------------------
@@ -238,12 +241,21 @@ class WarpRenderer:
         res = warp_from_sources(target, sources, t, motions, self.config.blend)
         cov = res.coverage
         rgb = fill_uncovered(res.rgb, cov, self.config.background, self.config.fill)
-        return WarpOutput(rgb, cov, len(sources))
+        nonrigid_track = np.array([is_non_rigid(c) for c in self.tracks.category], bool)
+        on_box = target.box_index >= 0
+        nonrigid = np.zeros(cov.shape, bool)
+        if len(boxes_T) and nonrigid_track.any():
+            nonrigid[on_box] = nonrigid_track[boxes_T.track[target.box_index[on_box]]]
+        return WarpOutput(rgb, cov, len(sources), nonrigid)
 
     def __call__(self, channel: str, camera: CameraSpec, city_T_cam: F64, timestamp_ns: int) -> np.ndarray:
-        """The writer's RenderFn: uint8 (H, W, 3) RGB."""
+        """The writer's RenderFn: uint8 (H, W, 3) RGB. Its recorded confidence is the share of pixels a
+        source saw, not counting pixels of non-rigid actors (their limbs move inside the warped box)."""
         out = self.render(camera, city_T_cam, timestamp_ns)
-        self.coverage.setdefault(channel, {})[int(timestamp_ns)] = float(out.coverage.mean())
+        trusted = out.coverage if out.nonrigid is None else out.coverage & ~out.nonrigid
+        self.coverage.setdefault(channel, {})[int(timestamp_ns)] = float(trusted.mean())
+        if out.nonrigid is not None:
+            self.nonrigid.setdefault(channel, {})[int(timestamp_ns)] = float(out.nonrigid.mean())
         return np.clip(np.rint(out.rgb * 255.0), 0, 255).astype(np.uint8)
 
     def save_coverage(self, path: Path) -> None:

@@ -8,13 +8,13 @@ linearly for a short ``tolerance_ns`` past a track's ends.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
+from nuav2.actor_tracks import smooth_box_poses
 from nuav2.geometry import F64, T_from_quat_trans, T_to_quat_trans, quat_slerp
 from nuav2.scene import SceneLog
-from nuav2.track_smoothing import smooth_box_poses
 
 DEFAULT_TOLERANCE_NS = 60_000_000
 
@@ -41,11 +41,12 @@ class BoxTracks:
     city_q_box: F64  # (K, 4)
     city_t_box: F64  # (K, 3)
     size_lwh: F64  # (K, 3)
+    category: np.ndarray = field(default_factory=lambda: np.zeros(0, object))  # (T,) per track
 
     @staticmethod
     def from_scene(scene: SceneLog, smooth: bool = False) -> BoxTracks:
         """All tracks of ``scene`` in the city frame; ``smooth`` takes per-frame label jitter out
-        (:mod:`nuav2.track_smoothing`) and gives each track its median size."""
+        (:mod:`nuav2.actor_tracks`) and gives each track its median size."""
         ann = scene.annotations
         lo = scene.pose_timestamps_ns[0] - scene.max_pose_extrapolation_ns
         hi = scene.pose_timestamps_ns[-1] + scene.max_pose_extrapolation_ns
@@ -74,7 +75,8 @@ class BoxTracks:
                 city_T_box[a:b] = smooth_box_poses(ts[a:b], city_T_box[a:b])
                 size[a:b] = np.median(size[a:b], axis=0)
         q, t = T_to_quat_trans(city_T_box)
-        return BoxTracks(track_ids, starts, ts, q, t, size)
+        category = np.asarray(ann.category, object)[order][starts[:-1]]
+        return BoxTracks(track_ids, starts, ts, q, t, size, category)
 
     def __len__(self) -> int:
         return len(self.track_ids)

@@ -1,5 +1,6 @@
-"""Annotated box tracks as smooth motion: per-frame label jitter taken out before boxes are used.
+"""Annotated actor tracks as both re-rendering modes need them: label jitter smoothed out, which actors bend.
 
+Smoothing: per-frame label jitter is taken out before boxes are used.
 Human (and auto-) labels place each frame's cuboid a few centimetres and a fraction of a degree
 off, independently per frame. Rendering or warping with those poses shakes actors between
 frames and tears them from their surroundings. A track that does not move (its centre spread
@@ -19,6 +20,15 @@ from nuav2.geometry import F64
 
 STATIC_STD_M = 0.3
 HALF_WINDOW = 4
+
+# AV2 categories whose shape changes inside their box (limbs, pedalling, riders): a rigid box model
+# (render mode's objects, warp mode's box layers) only approximates them.
+NON_RIGID = frozenset({"PEDESTRIAN", "BICYCLIST", "MOTORCYCLIST", "WHEELED_RIDER", "OFFICIAL_SIGNALER",
+                       "WHEELCHAIR", "STROLLER", "DOG", "ANIMAL"})
+
+
+def is_non_rigid(category: str) -> bool:
+    return str(category).upper() in NON_RIGID
 
 
 def _yaw(R: F64) -> F64:
