@@ -170,13 +170,51 @@ def test_ground_seeds_follow_raster_and_skip_occupied(fixture_scene):
     seeds, cells = ground_seeds(surface, np.zeros((0, 2)), cfg)
     assert len(seeds) > 100
     np.testing.assert_allclose(seeds[:, :2], (cells + 0.5) * cfg.ground_spacing_m)  # an aligned grid
-    z_city = scene.ground_height.height_at(seeds[:, :2] + city_T_scene[:2, 3])
-    ok = np.isfinite(z_city)
+    # On the raster, each seed lies between the heights of the (valid) cells around it: bilinear.
+    r = scene.ground_height
+    xy_city = seeds[:, :2] + city_T_scene[:2, 3]
+    p = r.s * (xy_city @ r.R.T + r.t) - 0.5
+    c0, r0 = np.floor(p[:, 0]).astype(int), np.floor(p[:, 1]).astype(int)
+    neigh = np.stack([r.heights[r0 + dr, c0 + dc].astype(float) for dr in (0, 1) for dc in (0, 1)], 1)
+    ok = np.isfinite(neigh).all(1)
     assert ok.mean() > 0.9
-    np.testing.assert_allclose(seeds[ok, 2], z_city[ok] - city_T_scene[2, 3], atol=1e-9)
+    z_city = seeds[ok, 2] + city_T_scene[2, 3]
+    assert np.all(z_city >= neigh[ok].min(1) - 1e-6) and np.all(z_city <= neigh[ok].max(1) + 1e-6)
     blocked = seeds[:10, :2]
     fewer, _ = ground_seeds(surface, blocked, cfg)
     assert len(fewer) <= len(seeds) - 10
     d = np.min(np.linalg.norm(fewer[:, None, :2] - blocked[None], axis=-1), axis=1)
     assert np.all(d > 0.3)
     assert math.isfinite(float(surface(np.zeros((1, 2)))[0]))
+
+
+def test_ground_off_the_raster_continues_it_from_lidar_then_the_ego_plane(fixture_scene):
+    """Real AV2 log: the raster covers the drivable area and a margin. Seeds just outside it must continue
+    the raster's heights (from LiDAR ground returns) instead of jumping to the ego's height."""
+    scene = fixture_scene
+    city_T_scene = scene_frame_for(scene.city_T_ego[0])
+    scene_T_city = T_inverse(city_T_scene)
+    sweep = scene.sweep(scene.lidar_sweeps[0])
+    scene_T_ego = scene_T_city @ scene.city_T_ego_at(int(scene.lidar_sweeps[0].timestamp_ns))
+    lidar = sweep.xyz_ego @ scene_T_ego[:3, :3].T + scene_T_ego[:3, 3]
+    with_lidar = GroundSurface(scene, scene_T_city, lidar)
+    plane_only = GroundSurface(scene, scene_T_city)
+    g = np.stack(np.meshgrid(np.arange(-40, 40, 0.5), np.arange(-40, 40, 0.5)), -1).reshape(-1, 2)
+    on = np.isfinite(with_lidar.raster_height(g))
+    assert 0.1 < on.mean() < 0.9
+    from scipy.spatial import cKDTree
+
+    d, i = cKDTree(g[on]).query(g[~on], k=1)
+    edge = np.flatnonzero(~on)[d <= 0.75]  # just outside the raster's region
+    inside = np.flatnonzero(on)[i[d <= 0.75]]
+    step_lidar = np.abs(with_lidar(g[edge]) - with_lidar(g[inside]))
+    assert np.median(step_lidar) < 0.1
+    # LiDAR ground returns agree with the raster where both exist (the raster is the truth there).
+    zl = with_lidar.lidar_cells[1]
+    tree = with_lidar.lidar_cells[0]
+    cells = tree.data[np.isfinite(zl)]
+    zr = with_lidar.raster_height(cells)
+    both = np.isfinite(zr)
+    assert both.sum() > 50 and np.median(np.abs(zl[np.isfinite(zl)][both] - zr[both])) < 0.1
+    # Without LiDAR the plane under the nearest pose takes over: finite everywhere.
+    assert np.all(np.isfinite(plane_only(g)))

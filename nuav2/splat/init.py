@@ -131,7 +131,7 @@ def initial_scene(scene: SceneLog, views: list[SourceView], cfg: InitConfig, *, 
     path_xy = (scene_T_city[None] @ scene.city_T_ego)[:, :2, 3]
     bg_lidar = banded_downsample(agg.background, path_xy, cfg.voxel_m, cfg.voxel_bands_m)
 
-    surface = GroundSurface(scene, scene_T_city)
+    surface = GroundSurface(scene, scene_T_city, bg_lidar)
     occupied = occupied_cells(bg_lidar, surface, cfg.ground_clear_height_m)
     ground, ground_cell = ground_seeds(surface, occupied, cfg)
     bg_pts = np.concatenate([bg_lidar, ground])

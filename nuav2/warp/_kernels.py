@@ -20,17 +20,33 @@ BISECTIONS = 30
 
 @njit(cache=True, inline="always")
 def _ground_height(x, y, normal, offset, heights, rR, rt, rs, has_raster):
-    """Raster height at city (x, y) where known, else the plane's height."""
+    """Raster height at city (x, y), bilinear between the valid neighbouring cell centres (as
+    ``nuav2.terrain.bilinear_height``), else the plane's height."""
     if has_raster:
-        px = rs * (rR[0, 0] * x + rR[0, 1] * y + rt[0])
-        py = rs * (rR[1, 0] * x + rR[1, 1] * y + rt[1])
-        if px >= 0.0 and py >= 0.0:
-            col = int(math.floor(px))
-            row = int(math.floor(py))
-            if row < heights.shape[0] and col < heights.shape[1]:
-                h = float(heights[row, col])
-                if math.isfinite(h):
-                    return h
+        px = rs * (rR[0, 0] * x + rR[0, 1] * y + rt[0]) - 0.5
+        py = rs * (rR[1, 0] * x + rR[1, 1] * y + rt[1]) - 0.5
+        c0 = int(math.floor(px))
+        r0 = int(math.floor(py))
+        fx = px - c0
+        fy = py - r0
+        acc = 0.0
+        wsum = 0.0
+        for dr in range(2):
+            r = r0 + dr
+            if r < 0 or r >= heights.shape[0]:
+                continue
+            wy = fy if dr == 1 else 1.0 - fy
+            for dc in range(2):
+                c = c0 + dc
+                if c < 0 or c >= heights.shape[1]:
+                    continue
+                wgt = wy * (fx if dc == 1 else 1.0 - fx)
+                v = float(heights[r, c])
+                if wgt > 0.0 and math.isfinite(v):
+                    acc += wgt * v
+                    wsum += wgt
+        if wsum > 1e-12:
+            return acc / wsum
     return (offset - normal[0] * x - normal[1] * y) / normal[2]
 
 

@@ -21,6 +21,7 @@ import numpy as np
 from nuav2.geometry import F64, T_inverse
 from nuav2.rig import CameraSpec
 from nuav2.scene import GroundHeightRaster
+from nuav2.terrain import bilinear_height
 from nuav2.warp._kernels import (
     box_depth_kernel,
     ground_depth_kernel,
@@ -87,10 +88,11 @@ class GroundSurface:
         return (self.offset - xy[:, 0] * n[0] - xy[:, 1] * n[1]) / n[2]
 
     def height(self, xy: F64) -> F64:
-        """Ground z at (N, 2) city xy: the raster where it has a value, else the plane."""
+        """Ground z at (N, 2) city xy: the raster (bilinear, :mod:`nuav2.terrain`) where it has a value, else
+        the plane."""
         if self.raster is None:
             return self.plane_height(xy)
-        h = self.raster.height_at(xy)
+        h = bilinear_height(self.raster, xy)
         miss = ~np.isfinite(h)
         h[miss] = self.plane_height(xy[miss])
         return h
