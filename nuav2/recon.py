@@ -180,12 +180,12 @@ def reconstruct(scene: SceneLog, config: ReconConfig | None = None, *, progress:
 
 def validation_views(train: list[SourceView], held: list[SourceView], skipped: list[SourceView],
                      cfg: ReconConfig) -> list[SourceView]:
-    """Images the early-stop rule measures, never trained on: the held-out images when there are any, else
-    the frames ``frame_stride`` skips, else every ``validation_every``-th training image (spread over
-    the log, at most ``train.eval_views``)."""
+    """Images the early-stop rule measures, never trained on: the frames ``frame_stride`` skips when there are
+    any (so reported held-out images stay independent of the stop), else the held-out images, else every
+    ``validation_every``-th training image; spread over the log, at most ``train.eval_views``."""
     if cfg.train.eval_every <= 0 or cfg.train.eval_views <= 0:
         return []
-    pool = held or skipped or (split_views(train, cfg.validation_every)[1] if cfg.validation_every else [])
+    pool = skipped or held or (split_views(train, cfg.validation_every)[1] if cfg.validation_every else [])
     return spread(pool, cfg.train.eval_views)
 
 
