@@ -27,6 +27,7 @@ from nuav2.nuscenes_db.images import ImageSourceError, RenderedImages
 from nuav2.rig import CameraSpec
 from nuav2.scene import CameraFrame, SceneLog
 from nuav2.warp.backward_warp import FILL_MODES, BlendConfig, SourceView, fill_uncovered, warp_from_sources
+from nuav2.warp.box_refit import refit_boxes
 from nuav2.warp.depth_proxy import GroundSurface, ProxyConfig, ProxyGeometry, render_depth_proxy
 from nuav2.warp.harmonise import solve_source_exposure, static_points
 from nuav2.warp.lidar_cloud import CloudConfig, LidarCloud
@@ -50,6 +51,7 @@ class WarpConfig:
     cache_mb: int = 1024  # source views (image + proxy) kept for reuse across target cameras
     harmonise: ExposureConfig | None = field(default_factory=ExposureConfig)  # None: sources as taken
     smooth_tracks: bool = True  # take per-frame label jitter out of the box tracks (nuav2.actor_tracks)
+    refit_boxes: bool = True  # move box faces to the actors' own LiDAR points (nuav2.warp.box_refit)
 
     def __post_init__(self) -> None:
         if self.fill not in FILL_MODES:
@@ -100,6 +102,8 @@ class WarpRenderer:
         self._poses: dict[int, F64] = {}
         self._boxes: OrderedDict[int, BoxesAt] = OrderedDict()
         self.tracks = BoxTracks.from_scene(scene, smooth=self.config.smooth_tracks)
+        if self.config.refit_boxes:
+            self.tracks = refit_boxes(self.tracks, scene)
         self.cloud = LidarCloud(scene, self.tracks, self.config.cloud, self.ground_at)
         self.frames: dict[str, list[CameraFrame]] = {}
         self.frame_ns: dict[str, np.ndarray] = {}
