@@ -59,7 +59,7 @@ def gather_track_points(tracks: BoxTracks, scene: SceneLog, margin_m: float = MA
 def face_moves(points: np.ndarray, size_lwh: np.ndarray, margin_m: float = MARGIN_M,
                max_move_m: float = MAX_MOVE_M, pad_m: float = PAD_M, min_points: int = MIN_POINTS,
                pct: float = PCT) -> tuple[np.ndarray, np.ndarray]:
-    """(low, high) face coordinates (3,) in the box frame after the refit (the label's are -size/2, +size/2)."""
+    """(low, high) face coordinates (3,) in the box frame after the refit (the label: -size/2, +size/2)."""
     half = np.asarray(size_lwh, np.float64) / 2
     lo, hi = -half.copy(), half.copy()
     if len(points) == 0:
