@@ -151,7 +151,8 @@ def convert_one_log(log_dir: Path, dataroot: Path, options: ConvertOptions) -> d
         out_rig, images = image_source_for(scene, options.mode, Path(dataroot), image_link=options.image_link,
                                            rig=options.rig, scale=options.scale,
                                            recon_preset=options.recon_preset,
-                                           min_confidence=options.min_confidence)
+                                           min_confidence=options.min_confidence,
+                                           progress=options.show_progress and options.workers == 1)
         shard = write_log(scene, out_rig, images, Path(dataroot),
                           WriterOptions(keyframe_hz=options.keyframe_hz,
                                         show_progress=options.show_progress and options.workers == 1))

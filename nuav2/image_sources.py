@@ -61,8 +61,9 @@ class QualityRecordingImages:
 
 def image_source_for(scene: SceneLog, mode: str, dataroot: Path, *, image_link: str = "copy",
                      rig: str = "nuscenes", scale: float = 1.0,
-                     recon_preset: str = "default", min_confidence: float = 0.0) -> tuple[Rig, ImageSource]:
-    """Output rig and image source of one log for ``mode``."""
+                     recon_preset: str = "default", min_confidence: float = 0.0,
+                     progress: bool = False) -> tuple[Rig, ImageSource]:
+    """Output rig and image source of one log for ``mode`` (``progress``: report reconstruction progress)."""
     if mode == "native":
         return output_rig_native(scene), NativeImages(image_link)
     out_rig = output_rig_target(rig, scale)
@@ -76,7 +77,7 @@ def image_source_for(scene: SceneLog, mode: str, dataroot: Path, *, image_link: 
         # Checkpoints beside the dataroot let a killed render-mode conversion resume training.
         ckpt = Path(dataroot) / ".recon" / scene.log_id
         source = render_image_source(scene, out_rig, preset=recon_preset, min_confidence=min_confidence,
-                                     checkpoint_dir=ckpt)
+                                     checkpoint_dir=ckpt, progress=progress)
         return out_rig, QualityRecordingImages(source, Path(dataroot))
     raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
 
