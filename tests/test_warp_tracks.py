@@ -135,12 +135,25 @@ def test_ground_heights_and_vertical_rays_match_av2_map(fixture_scene, av2_fixtu
     theirs = avm.raster_ground_height_layer.get_ground_height_at_xy(np.column_stack([xy, np.zeros(len(xy))]))
     known = np.isfinite(theirs)
     assert known.sum() > 100
-    np.testing.assert_allclose(ground.height(xy)[known], theirs[known], atol=1e-3)  # float16 raster
-    # A vertical ray from 5 m above lands on the raster height.
-    origin_z = theirs[known] + 5.0
+    # At cell centres our bilinear height is the cell's value, which av2 returns for the whole cell.
+    r = fixture_scene.ground_height
+    centres = ((np.floor(r.s * (xy @ r.R.T + r.t)) + 0.5) / r.s - r.t) @ r.R
+    layer = avm.raster_ground_height_layer
+    theirs_c = layer.get_ground_height_at_xy(np.column_stack([centres, np.zeros(len(xy))]))
+    np.testing.assert_allclose(ground.height(centres)[known], theirs_c[known], atol=1e-3)  # float16 raster
+    # Between centres it lies within the range of av2's values at the four neighbouring cells.
+    step = 1.0 / r.s
+    neigh = np.stack([layer.get_ground_height_at_xy(
+        np.column_stack([xy + [dx, dy], np.zeros(len(xy))])) for dx in (-step / 2, step / 2)
+        for dy in (-step / 2, step / 2)], 1)
+    ok = known & np.isfinite(neigh).all(1)
+    ours = ground.height(xy)[ok]
+    assert np.all(ours >= neigh[ok].min(1) - 1e-3) and np.all(ours <= neigh[ok].max(1) + 1e-3)
+    # A vertical ray from 5 m above lands on that height (the compiled caster reads the raster the same way).
+    origin_z = ours[:30] + 5.0
     t = np.array([ground.intersect(np.array([x, y, z]), np.array([[0.0, 0.0, -1.0]]))[0]
-                  for (x, y), z in zip(xy[known][:30], origin_z[:30])])
-    np.testing.assert_allclose(origin_z[:30] - t, theirs[known][:30], atol=1e-3)
+                  for (x, y), z in zip(xy[ok][:30], origin_z)])
+    np.testing.assert_allclose(origin_z - t, ours[:30], atol=1e-3)
     # The ego origin is ~0.32 m above the ground it stands on (fixture README).
     ego = fixture_scene.city_T_ego[::100]
     h = ego[:, 2, 3] - ground.height(ego[:, :2, 3])

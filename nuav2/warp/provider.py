@@ -52,6 +52,7 @@ class WarpConfig:
     harmonise: ExposureConfig | None = field(default_factory=ExposureConfig)  # None: sources as taken
     smooth_tracks: bool = True  # take per-frame label jitter out of the box tracks (nuav2.actor_tracks)
     refit_boxes: bool = True  # move box faces to the actors' own LiDAR points (nuav2.warp.box_refit)
+    static_actors_as_lidar: bool = True  # parked actors are LiDAR geometry (their real shape), not boxes
 
     def __post_init__(self) -> None:
         if self.fill not in FILL_MODES:
@@ -102,6 +103,8 @@ class WarpRenderer:
         self._poses: dict[int, F64] = {}
         self._boxes: OrderedDict[int, BoxesAt] = OrderedDict()
         self.tracks = BoxTracks.from_scene(scene, smooth=self.config.smooth_tracks)
+        if self.config.static_actors_as_lidar:  # only what moves needs a box that carries it
+            self.tracks = self.tracks.select(self.tracks.moving())
         if self.config.refit_boxes:
             self.tracks = refit_boxes(self.tracks, scene)
         self.cloud = LidarCloud(scene, self.tracks, self.config.cloud, self.ground_at)

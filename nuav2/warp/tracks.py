@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from nuav2.actor_tracks import smooth_box_poses
+from nuav2.actor_tracks import STATIC_STD_M, is_static, smooth_box_poses
 from nuav2.geometry import F64, T_from_quat_trans, T_to_quat_trans, quat_slerp
 from nuav2.scene import SceneLog
 
@@ -80,6 +80,22 @@ class BoxTracks:
 
     def __len__(self) -> int:
         return len(self.track_ids)
+
+    def moving(self, static_std_m: float = STATIC_STD_M) -> np.ndarray:
+        """(T,) bool: which tracks move (centre spread above ``static_std_m``, as nuav2.actor_tracks)."""
+        return np.array([not is_static(self.city_t_box[a:b], static_std_m)
+                         for a, b in zip(self.starts[:-1], self.starts[1:])], bool)
+
+    def select(self, keep: np.ndarray) -> BoxTracks:
+        """The tracks where ``keep`` (T,) is True, in the same order."""
+        keep = np.asarray(keep, bool)
+        rows = np.concatenate([np.arange(self.starts[k], self.starts[k + 1]) for k in np.flatnonzero(keep)]
+                              or [np.zeros(0, np.int64)]).astype(np.int64)
+        counts = np.diff(self.starts)[keep]
+        starts = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+        category = self.category[keep] if len(self.category) == len(keep) else self.category
+        return BoxTracks(self.track_ids[keep], starts, self.timestamp_ns[rows], self.city_q_box[rows],
+                         self.city_t_box[rows], self.size_lwh[rows], category)
 
     def at(self, timestamp_ns: int, tolerance_ns: int = DEFAULT_TOLERANCE_NS) -> BoxesAt:
         """Every track alive at ``timestamp_ns`` (within ``tolerance_ns`` of its ends), posed at that time."""
