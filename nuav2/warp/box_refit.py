@@ -76,20 +76,34 @@ def face_moves(points: np.ndarray, size_lwh: np.ndarray, margin_m: float = MARGI
     return lo, hi
 
 
-def refit_boxes(tracks: BoxTracks, scene: SceneLog, **kw) -> BoxTracks:
-    """``tracks`` with every track's box moved and resized to its LiDAR points (see module doc)."""
-    stride = kw.pop("sweep_stride", 1)
-    pts = gather_track_points(tracks, scene, kw.get("margin_m", MARGIN_M), stride)
+def refit_boxes(tracks: BoxTracks, points: list[list[np.ndarray]], **kw) -> tuple[BoxTracks, np.ndarray]:
+    """``tracks`` with every track's box moved and resized to its LiDAR ``points`` (box frame, from
+    :func:`gather_track_points`; see module doc), and each track's (3,) box-frame shift."""
     t_box, size = tracks.city_t_box.copy(), tracks.size_lwh.copy()
+    shifts = np.zeros((len(tracks), 3))
     for k in range(len(tracks)):
         s, e = int(tracks.starts[k]), int(tracks.starts[k + 1])
-        if not pts[k]:
+        if not points[k]:
             continue
         med = np.median(tracks.size_lwh[s:e], axis=0)
-        lo, hi = face_moves(np.concatenate(pts[k]), med, **kw)
-        centre_box = (lo + hi) / 2
+        lo, hi = face_moves(np.concatenate(points[k]), med, **kw)
+        shifts[k] = (lo + hi) / 2
         R = quat_to_rot(tracks.city_q_box[s:e])
-        t_box[s:e] += np.einsum("nij,j->ni", R, centre_box)
+        t_box[s:e] += np.einsum("nij,j->ni", R, shifts[k])
         size[s:e] = hi - lo
-    return replace(tracks, city_t_box=t_box, size_lwh=size)
+    return replace(tracks, city_t_box=t_box, size_lwh=size), shifts
 
+
+def actor_models(points: list[list[np.ndarray]], shifts: np.ndarray,
+                 voxel_m: float = 0.05) -> list[np.ndarray]:
+    """Per track, its points of all sweeps in its (refit) box frame, one per ``voxel_m`` voxel: the shape the
+    box layer is checked against (``ProxyGeometry.actor_points_city``)."""
+    out = []
+    for k, parts in enumerate(points):
+        if not parts:
+            out.append(np.zeros((0, 3)))
+            continue
+        p = np.concatenate(parts) - shifts[k]
+        _, first = np.unique(np.floor(p / voxel_m).astype(np.int64), axis=0, return_index=True)
+        out.append(p[np.sort(first)])
+    return out

@@ -245,6 +245,10 @@ class ProxyGeometry:
     point_radius_m: F64  # (N,) disk radius per point
     city_T_box: F64  # (B, 4, 4) boxes at this time
     size_lwh: F64  # (B, 3)
+    # The actors' own LiDAR points at this time (city frame) and which box each belongs to: a box pixel
+    # is kept only where these show a surface (boxes without points are kept whole).
+    actor_points_city: F64 | None = None  # (M, 3)
+    actor_box: np.ndarray | None = None  # (M,) int, index into the boxes
 
     @staticmethod
     def empty() -> ProxyGeometry:
@@ -278,6 +282,28 @@ class DepthProxy:
         return pts, finite
 
 
+ACTOR_POINT_RADIUS_M = 0.08
+ACTOR_MIN_POINTS = 50
+
+
+def actor_surface(camera: CameraSpec, city_T_cam: F64, geometry: ProxyGeometry, box_index: np.ndarray,
+                  behind: F64, config: ProxyConfig) -> np.ndarray:
+    """(H, W) bool: where a box pixel really shows its actor. A box is a cuboid, an actor is not (rounded
+    bodies, the road under a car, a box a few centimetres off): the actor's own points, splatted as
+    ``ACTOR_POINT_RADIUS_M`` disks with small holes closed, must show a surface there in front of what
+    lies behind. Boxes with fewer than ``ACTOR_MIN_POINTS`` points (far, occluded) are kept whole."""
+    n_box = len(geometry.city_T_box)
+    counts = np.bincount(geometry.actor_box, minlength=n_box)
+    d = lidar_depth(camera, city_T_cam, geometry.actor_points_city,
+                    np.full(len(geometry.actor_points_city), ACTOR_POINT_RADIUS_M), config)
+    seen = np.isfinite(d) & (d < behind)
+    has_points = counts >= ACTOR_MIN_POINTS
+    trust = np.zeros(box_index.shape, bool)
+    valid = box_index >= 0
+    trust[valid] = ~has_points[box_index[valid]]
+    return seen | trust
+
+
 def render_depth_proxy(camera: CameraSpec, city_T_cam: F64, geometry: ProxyGeometry,
                        config: ProxyConfig | None = None) -> DepthProxy:
     """Depth proxy of one view: nearest of ground, lidar disks and boxes (see module doc)."""
@@ -293,6 +319,8 @@ def render_depth_proxy(camera: CameraSpec, city_T_cam: F64, geometry: ProxyGeome
                                               geometry.point_radius_m, config))
     bd, bi = box_depth(camera, city_T_cam, geometry.city_T_box, geometry.size_lwh, config)
     on_box = bd < depth
+    if geometry.actor_points_city is not None and len(geometry.actor_points_city) and on_box.any():
+        on_box &= actor_surface(camera, city_T_cam, geometry, bi, depth, config)
     depth = np.where(on_box, bd, depth)
     index = np.where(on_box, bi, NO_BOX).astype(np.int32)
     return DepthProxy(camera, city_T_cam, depth, index)

@@ -27,7 +27,7 @@ from nuav2.nuscenes_db.images import ImageSourceError, RenderedImages
 from nuav2.rig import CameraSpec
 from nuav2.scene import CameraFrame, SceneLog
 from nuav2.warp.backward_warp import FILL_MODES, BlendConfig, SourceView, fill_uncovered, warp_from_sources
-from nuav2.warp.box_refit import refit_boxes
+from nuav2.warp.box_refit import actor_models, gather_track_points, refit_boxes
 from nuav2.warp.depth_proxy import GroundSurface, ProxyConfig, ProxyGeometry, render_depth_proxy
 from nuav2.warp.harmonise import solve_source_exposure, static_points
 from nuav2.warp.lidar_cloud import CloudConfig, LidarCloud
@@ -53,6 +53,7 @@ class WarpConfig:
     smooth_tracks: bool = True  # take per-frame label jitter out of the box tracks (nuav2.actor_tracks)
     refit_boxes: bool = True  # move box faces to the actors' own LiDAR points (nuav2.warp.box_refit)
     static_actors_as_lidar: bool = True  # parked actors are LiDAR geometry (their real shape), not boxes
+    actor_check: bool = True  # box pixels only where the actor's own LiDAR points show a surface
 
     def __post_init__(self) -> None:
         if self.fill not in FILL_MODES:
@@ -105,8 +106,14 @@ class WarpRenderer:
         self.tracks = BoxTracks.from_scene(scene, smooth=self.config.smooth_tracks)
         if self.config.static_actors_as_lidar:  # only what moves needs a box that carries it
             self.tracks = self.tracks.select(self.tracks.moving())
-        if self.config.refit_boxes:
-            self.tracks = refit_boxes(self.tracks, scene)
+        self.actor_points: list[np.ndarray] | None = None
+        if self.config.refit_boxes or self.config.actor_check:
+            points = gather_track_points(self.tracks, scene)
+            shifts = np.zeros((len(self.tracks), 3))
+            if self.config.refit_boxes:
+                self.tracks, shifts = refit_boxes(self.tracks, points)
+            if self.config.actor_check:
+                self.actor_points = actor_models(points, shifts)
         self.cloud = LidarCloud(scene, self.tracks, self.config.cloud, self.ground_at)
         self.frames: dict[str, list[CameraFrame]] = {}
         self.frame_ns: dict[str, np.ndarray] = {}
@@ -153,7 +160,14 @@ class WarpRenderer:
         """Ground, static lidar points and boxes at ``timestamp_ns`` (the boxes also with their tracks)."""
         pts, radius = self.cloud.around(timestamp_ns)
         boxes = self.boxes_at(timestamp_ns)
-        geometry = ProxyGeometry(self.ground_at(timestamp_ns), pts, radius, boxes.city_T_box, boxes.size_lwh)
+        actor_pts, actor_box = None, None
+        if self.actor_points is not None and len(boxes):
+            parts = [self.actor_points[int(k)] @ T[:3, :3].T + T[:3, 3]
+                     for k, T in zip(boxes.track, boxes.city_T_box)]
+            actor_pts = np.concatenate(parts)
+            actor_box = np.repeat(np.arange(len(boxes)), [len(p) for p in parts])
+        geometry = ProxyGeometry(self.ground_at(timestamp_ns), pts, radius, boxes.city_T_box, boxes.size_lwh,
+                                 actor_pts, actor_box)
         return geometry, boxes
 
     # -- sources --------------------------------------------------------------------------------
