@@ -26,8 +26,8 @@ from nuav2.geometry import F64, T_inverse
 from nuav2.nuscenes_db.images import ImageSourceError, RenderedImages
 from nuav2.rig import CameraSpec
 from nuav2.scene import CameraFrame, SceneLog
+from nuav2.warp.actor_points import actor_models, gather_track_points
 from nuav2.warp.backward_warp import FILL_MODES, BlendConfig, SourceView, fill_uncovered, warp_from_sources
-from nuav2.warp.box_refit import actor_models, gather_track_points, refit_boxes
 from nuav2.warp.depth_proxy import GroundSurface, ProxyConfig, ProxyGeometry, render_depth_proxy
 from nuav2.warp.harmonise import solve_source_exposure, static_points
 from nuav2.warp.lidar_cloud import CloudConfig, LidarCloud
@@ -51,7 +51,6 @@ class WarpConfig:
     cache_mb: int = 1024  # source views (image + proxy) kept for reuse across target cameras
     harmonise: ExposureConfig | None = field(default_factory=ExposureConfig)  # None: sources as taken
     smooth_tracks: bool = True  # take per-frame label jitter out of the box tracks (nuav2.actor_tracks)
-    refit_boxes: bool = True  # move box faces to the actors' own LiDAR points (nuav2.warp.box_refit)
     static_actors_as_lidar: bool = True  # parked actors are LiDAR geometry (their real shape), not boxes
     actor_check: bool = True  # box pixels only where the actor's own LiDAR points show a surface
 
@@ -107,13 +106,8 @@ class WarpRenderer:
         if self.config.static_actors_as_lidar:  # only what moves needs a box that carries it
             self.tracks = self.tracks.select(self.tracks.moving())
         self.actor_points: list[np.ndarray] | None = None
-        if self.config.refit_boxes or self.config.actor_check:
-            points = gather_track_points(self.tracks, scene)
-            shifts = np.zeros((len(self.tracks), 3))
-            if self.config.refit_boxes:
-                self.tracks, shifts = refit_boxes(self.tracks, points)
-            if self.config.actor_check:
-                self.actor_points = actor_models(points, shifts)
+        if self.config.actor_check:
+            self.actor_points = actor_models(gather_track_points(self.tracks, scene))
         self.cloud = LidarCloud(scene, self.tracks, self.config.cloud, self.ground_at)
         self.frames: dict[str, list[CameraFrame]] = {}
         self.frame_ns: dict[str, np.ndarray] = {}
