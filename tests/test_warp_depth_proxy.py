@@ -24,6 +24,7 @@ from nuav2.warp.depth_proxy import (
 from nuav2.warp.tracks import BoxTracks  # noqa: F401  (import check: module loads)
 
 CFG = ProxyConfig()
+GROUND = GroundSurface.horizontal(0.0)
 
 
 def test_ground_plane_depth_round_trips_to_the_plane():
@@ -240,3 +241,26 @@ def test_empty_geometry_gives_all_infinity():
     assert np.all(np.isinf(proxy.depth)) and np.all(proxy.box_index == NO_BOX)
     with pytest.raises(ValueError, match="finite 4x4"):
         render_depth_proxy(cam, np.full((4, 4), np.nan), ProxyGeometry.empty())
+
+
+def test_box_pixels_are_kept_only_where_the_actor_points_show_a_surface():
+    """Two boxes on the ground: box 0's actor points fill only its upper half (a rounded body: the road under
+    it is visible), box 1 has no points (far, occluded) and is kept whole."""
+    cam = camera(width=80, height=60)
+    T = city_T_cam(0.0, 0.0, 1.5, pitch_down=0.05)
+    boxes = np.stack([make_T(np.eye(3), [12.0, 1.5, 0.8]), make_T(np.eye(3), [20.0, -3.0, 0.8])])
+    sizes = np.array([[4.0, 2.0, 1.6], [4.0, 2.0, 1.6]])
+    yy, zz = np.meshgrid(np.linspace(-1.0, 1.0, 41), np.linspace(0.0, 0.8, 17))
+    face = np.column_stack([np.full(yy.size, -2.0), yy.ravel(), zz.ravel()])  # box 0's face, upper half
+    pts = face + [12.0, 1.5, 0.8]
+    whole = render_depth_proxy(cam, T, ProxyGeometry(GROUND, np.zeros((0, 3)), np.zeros(0), boxes, sizes))
+    checked = render_depth_proxy(cam, T, ProxyGeometry(GROUND, np.zeros((0, 3)), np.zeros(0), boxes, sizes,
+                                                       pts, np.zeros(len(pts), np.int64)))
+    lost = (whole.box_index == 0) & (checked.box_index != 0)
+    kept = checked.box_index == 0
+    assert kept.sum() > 30 and lost.sum() > 15  # (of 82 box pixels at this size)
+    # The lost pixels are the lower half of the box's face: they now see the ground behind the box.
+    rows_kept, rows_lost = np.nonzero(kept)[0], np.nonzero(lost)[0]
+    assert rows_lost.min() > np.median(rows_kept)
+    assert np.all(checked.depth[lost] > whole.depth[lost])
+    np.testing.assert_array_equal(checked.box_index == 1, whole.box_index == 1)  # no points: kept whole

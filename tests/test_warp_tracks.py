@@ -158,3 +158,25 @@ def test_ground_heights_and_vertical_rays_match_av2_map(fixture_scene, av2_fixtu
     ego = fixture_scene.city_T_ego[::100]
     h = ego[:, 2, 3] - ground.height(ego[:, :2, 3])
     assert np.all(np.abs(h - 0.32) < 0.05)
+
+
+def test_moving_tracks_are_told_from_parked_ones_and_selected():
+    """A parked car with label jitter is not moving; a driving one is; ``select`` keeps rows and order."""
+    rng = np.random.default_rng(0)
+    n = 20
+    ts = np.arange(n, dtype=np.int64) * 100_000_000
+    parked = np.array([5.0, 2.0, 0.8]) + rng.normal(0, 0.05, (n, 3))
+    driving = np.column_stack([np.arange(n) * 0.9, np.zeros(n), np.full(n, 0.8)])
+    walker = np.column_stack([np.zeros(n), np.arange(n) * 0.14, np.full(n, 0.9)])
+    q = np.tile([1.0, 0.0, 0.0, 0.0], (3 * n, 1))
+    tracks = BoxTracks(np.array(["p", "d", "w"], object), np.array([0, n, 2 * n, 3 * n]), np.tile(ts, 3), q,
+                       np.concatenate([parked, driving, walker]), np.tile([4.0, 2.0, 1.6], (3 * n, 1)),
+                       np.array(["REGULAR_VEHICLE", "REGULAR_VEHICLE", "PEDESTRIAN"], object))
+    moving = tracks.moving()
+    assert moving.tolist() == [False, True, True]
+    sel = tracks.select(moving)
+    assert sel.track_ids.tolist() == ["d", "w"] and sel.starts.tolist() == [0, n, 2 * n]
+    np.testing.assert_array_equal(sel.city_t_box, np.concatenate([driving, walker]))
+    assert sel.category.tolist() == ["REGULAR_VEHICLE", "PEDESTRIAN"]
+    at = sel.at(int(ts[5]))
+    assert len(at) == 2 and sel.track_ids[at.track].tolist() == ["d", "w"]
