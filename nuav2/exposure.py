@@ -33,7 +33,7 @@ F64 = np.ndarray
 class ExposureConfig:
     """Knobs of the solve (colours in [0, 1])."""
 
-    iterations: int = 8
+    iterations: int = 4
     prior_weight: float = 2.0  # ridge weight (in observations) pulling each log gain to 0
     vignetting: bool = True  # also solve one radial fall-off for all cameras (AV2's ring: one model)
     outlier_sigma: float = 2.5
@@ -201,7 +201,7 @@ def solve_exposure(obs: Observations, camera_of_image: np.ndarray,
     prior[n_img:] = 1e-3
     logc = np.log(rgb)
     lg = np.zeros((n_img, 3))
-    vig = np.zeros((3, 2))
+    vig = np.zeros((3, 2))  # per channel, a1 and a2
     w = np.ones(n_obs)
     for _ in range(max(1, cfg.iterations)):
         W = sparse.diags(w)
@@ -212,16 +212,14 @@ def solve_exposure(obs: Observations, camera_of_image: np.ndarray,
         Dinv = sparse.diags(1.0 / np.maximum(d, 1e-12))
         S = AtWB @ Dinv
         N = AtWA - (S @ AtWB.T).toarray() + np.diag(prior)
-        resid = np.zeros((n_obs, 3))
-        for k in range(3):
-            y = logc[:, k]
-            rhs = AtW @ y - S @ (B.T @ (w * y))
-            x = np.linalg.solve(N, rhs)
-            r_pt = Dinv @ (B.T @ (w * (y - A @ x)))
-            resid[:, k] = y - A @ x - B @ r_pt
-            lg[:, k] = x[:n_img]
-            if cfg.vignetting:
-                vig[k] = x[n_img:]
+        wy = w[:, None] * logc
+        x = np.linalg.solve(N, AtW @ logc - S @ (B.T @ wy))  # (n, 3): one system, three channels
+        fit = A @ x
+        r_pt = Dinv @ (B.T @ (w[:, None] * (logc - fit)))
+        resid = logc - fit - B @ r_pt
+        lg = x[:n_img]
+        if cfg.vignetting:
+            vig = x[n_img:].T
         r = np.abs(resid).max(1)
         sigma = 1.4826 * np.median(r[w > 0]) + 1e-6
         w = (r <= cfg.outlier_sigma * sigma).astype(np.float64)
