@@ -1,0 +1,87 @@
+"""The Gaussian budget follows the scene: plain ground merges into coarse discs, paint keeps fine seeds,
+thinning keeps ground and paint first, and the densification budget grows with seeds and moving tracks."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from nuav2.splat.budget import (
+    TIER_FAR,
+    TIER_GROUND,
+    TIER_NEAR,
+    TIER_PAINT,
+    BudgetConfig,
+    GroundSeeds,
+    keep_by_priority,
+    merge_plain_ground,
+    scene_budget,
+)
+
+
+def grid_seeds(n: int, spacing: float, colour_fn) -> GroundSeeds:
+    i, j = np.meshgrid(np.arange(n), np.arange(n), indexing="ij")
+    cell = np.column_stack([i.ravel(), j.ravel()])
+    xy = (cell + 0.5) * spacing
+    rgb = np.array([colour_fn(x, y) for x, y in xy], np.float64)
+    return GroundSeeds(np.column_stack([xy, np.zeros(len(xy))]), rgb, cell, np.ones(len(xy), np.int64))
+
+
+def test_plain_ground_merges_and_paint_keeps_its_fine_seeds():
+    # 16 x 16 cells of 0.25 m: dark asphalt with a 0.25 m wide white line along x = 2.0 .. 2.25 m.
+    paint = lambda x, y: (0.9, 0.9, 0.9) if 2.0 <= x < 2.25 else (0.3, 0.3, 0.32)  # noqa: E731
+    seeds = grid_seeds(16, 0.25, paint)
+    merged = merge_plain_ground(seeds, levels=2, tol=0.05)
+    assert len(merged) < len(seeds) / 2
+    # the line's cells are still there at full resolution, with their colour
+    line = merged.size == 1
+    assert np.all(merged.rgb[line][:, 0] > 0.8) or np.all(merged.xyz[line][:, 0] >= 1.75)
+    fine_white = (merged.size == 1) & (merged.rgb[:, 0] > 0.8)
+    assert fine_white.sum() == 16  # every paint seed of the 16 rows kept
+    # merged discs are 2 or 4 cells wide and keep the asphalt colour; the area is conserved
+    assert set(np.unique(merged.size)) <= {1, 2, 4} and np.all(merged.rgb[merged.size > 1][:, 0] < 0.35)
+    assert (merged.size ** 2).sum() == len(seeds)
+    # a fully plain patch collapses 16:1
+    plain = merge_plain_ground(grid_seeds(8, 0.25, lambda x, y: (0.3, 0.3, 0.3)), levels=2, tol=0.05)
+    assert len(plain) == 4 and np.all(plain.size == 4)
+    np.testing.assert_allclose(np.sort(plain.xyz[:, 0]), [0.5, 0.5, 1.5, 1.5])  # block centres
+
+
+def test_thinning_keeps_tiers_in_order_and_samples_the_straddling_one():
+    rng = np.random.default_rng(0)
+    tier = np.array([TIER_FAR] * 50 + [TIER_PAINT] * 10 + [TIER_NEAR] * 30 + [TIER_GROUND] * 20)
+    keep = keep_by_priority(tier, 45, rng)
+    assert len(keep) == 45 and np.all(np.diff(keep) > 0)
+    kept = tier[keep]
+    assert (kept == TIER_PAINT).sum() == 10 and (kept == TIER_GROUND).sum() == 20
+    assert (kept == TIER_NEAR).sum() == 15 and (kept == TIER_FAR).sum() == 0
+    assert len(keep_by_priority(tier, 1000, rng)) == len(tier)
+
+
+def test_budget_grows_with_seeds_and_moving_tracks_within_bounds():
+    cfg = BudgetConfig(growth=1.25, per_moving_track=1500, min_budget=20_000, max_budget=150_000)
+    assert scene_budget(40_000, 0, cfg) == 50_000
+    assert scene_budget(40_000, 4, cfg) == 56_000
+    assert scene_budget(1_000, 0, cfg) == 20_000 and scene_budget(10**6, 0, cfg) == 150_000
+
+
+def test_seeding_a_log_gives_a_scene_budget_and_coarse_plain_ground(tmp_path):
+    from converters.av2 import read_log
+    from nuav2.splat.init import InitConfig, initial_scene, source_views
+    from nuav2.synth import SynthConfig, generate_log
+
+    small = SynthConfig(seconds=0.3, image_scale=1 / 16, lidar_azimuth_steps=256, n_parked=1, n_moving=1,
+                        n_pedestrians=0, map_margin_m=25.0)
+    log = generate_log(tmp_path, seed=2, config=small)
+    scene = read_log(log)
+    views = source_views(scene, 1.0)
+    cfg = InitConfig(max_background=20_000, ground_spacing_m=0.25, ground_radius_m=12.0, exposure=None)
+    res = initial_scene(scene, views, cfg, sh_degree=0)
+    st = res.stats
+    assert st["ground_seeds"] < 0.6 * st["ground_seeds_fine"]  # plain asphalt and sidewalk merged
+    assert st["seeds_by_tier"]["textured ground"] > 200  # paint, kerbs and crossings stayed fine
+    n_seeds = st["background_gaussians"] + st["object_gaussians"]
+    assert res.budget == scene_budget(n_seeds, st["moving_tracks"], cfg.budget)
+    from dataclasses import replace
+
+    fixed = initial_scene(scene, views, replace(cfg, budget=None), sh_degree=0)
+    assert fixed.budget is None and fixed.stats["ground_seeds"] == fixed.stats["ground_seeds_fine"]
