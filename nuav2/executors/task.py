@@ -1,0 +1,69 @@
+"""One log as one unit of work, the same in a local process and in a Ray task: convert, time, summarise.
+
+The result is the plain dict of :func:`nuav2.convert.convert_one_log` (``log_id``, ``log_dir``,
+``error``) plus ``summary`` (seconds, images, mode, worker) for the report. The shard itself is
+written by ``convert_one_log``, atomically, so every executor produces the same bytes.
+
+``NUAV2_TEST_FAULT`` is a fault-injection hook for the executor tests, read by the driver and
+handed to each task: ``kill:DIR`` kills the worker process (SIGKILL) once per log, after its
+images are written and before its shard is saved (a marker in DIR makes the retry go through);
+``hang:DIR`` writes ``DIR/<log_id>.hang`` holding the worker's pid and sleeps until killed.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import time
+from pathlib import Path
+
+FAULT_ENV = "NUAV2_TEST_FAULT"
+FAULT_ACTIONS = ("kill", "hang")
+
+
+def fault_from_env() -> str | None:
+    """The test hook's spec from the driver's environment (None: no fault)."""
+    spec = os.environ.get(FAULT_ENV) or None
+    if spec is not None and spec.partition(":")[0] not in FAULT_ACTIONS:
+        raise ValueError(f"{FAULT_ENV}={spec!r}: expected one of {FAULT_ACTIONS} followed by ':DIR'")
+    return spec
+
+
+def inject_fault(spec: str | None, log_id: str) -> None:
+    """Act out the test hook for ``log_id`` (nothing when ``spec`` is None)."""
+    if not spec:
+        return
+    action, _, folder = spec.partition(":")
+    marker = Path(folder) / f"{log_id}.{action}"
+    if action == "kill":
+        if marker.exists():
+            return
+        marker.write_text(str(os.getpid()))
+        os.kill(os.getpid(), signal.SIGKILL)
+    elif action == "hang":
+        marker.write_text(str(os.getpid()))
+        while True:
+            time.sleep(1.0)
+
+
+def worker_name() -> str:
+    return f"{socket.gethostname()}:{os.getpid()}"
+
+
+def run_one(log_dir: str | Path, dataroot: str | Path, options, fault: str | None = None) -> dict:
+    """Convert one log (``options``: a :class:`nuav2.convert.ConvertOptions`) and time it."""
+    from nuav2.convert import convert_one_log
+
+    t0 = time.perf_counter()
+    result = convert_one_log(Path(log_dir), Path(dataroot), options,
+                             after_write=(lambda log_id: inject_fault(fault, log_id)) if fault else None)
+    result["summary"] = {"seconds": round(time.perf_counter() - t0, 3), "images": result.pop("images", 0),
+                         "mode": options.mode, "worker": worker_name()}
+    return result
+
+
+def failure(log_dir: str | Path, error: str, mode: str, worker: str | None = None) -> dict:
+    """A result for a log whose task never returned (its worker died past the retries)."""
+    return {"log_id": Path(log_dir).name, "log_dir": str(log_dir), "error": error,
+            "summary": {"seconds": None, "images": 0, "mode": mode, "worker": worker}}
