@@ -13,7 +13,6 @@ an error naming the node. ``ray`` is imported only here, and only when this exec
 from __future__ import annotations
 
 import contextlib
-import importlib.util
 import logging
 import math
 import os
@@ -38,7 +37,11 @@ DEFAULT_MEMORY_GB = {"native": 2.0, "warp": 4.0, "render": 8.0}
 
 
 def ray_available() -> bool:
-    return importlib.util.find_spec("ray") is not None
+    try:
+        import_ray()
+    except ImportError:
+        return False
+    return True
 
 
 def import_ray():

@@ -4,10 +4,11 @@ The result is the plain dict of :func:`nuav2.convert.convert_one_log` (``log_id`
 ``error``) plus ``summary`` (seconds, images, mode, worker) for the report. The shard itself is
 written by ``convert_one_log``, atomically, so every executor produces the same bytes.
 
-``NUAV2_TEST_FAULT`` is a fault-injection hook for the executor tests, read by the driver and
-handed to each task: ``kill:DIR`` kills the worker process (SIGKILL) once per log, after its
-images are written and before its shard is saved (a marker in DIR makes the retry go through);
-``hang:DIR`` writes ``DIR/<log_id>.hang`` holding the worker's pid and sleeps until killed.
+``NUAV2_TEST_FAULT=ACTION:DIR`` is a fault-injection hook for the executor tests, read by the
+driver and handed to each task. Every attempt at a log appends the worker's pid to
+``DIR/<log_id>.attempts``; then ``kill`` kills the worker (SIGKILL) on the log's first attempt,
+after its images are written and before its shard is saved; ``crash`` does so on every attempt;
+``hang`` sleeps until the process is killed; ``record`` does nothing more.
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ import time
 from pathlib import Path
 
 FAULT_ENV = "NUAV2_TEST_FAULT"
-FAULT_ACTIONS = ("kill", "hang")
+FAULT_ACTIONS = ("record", "kill", "crash", "hang")
 
 
 def fault_from_env() -> str | None:
@@ -30,21 +31,28 @@ def fault_from_env() -> str | None:
     return spec
 
 
-def inject_fault(spec: str | None, log_id: str) -> None:
-    """Act out the test hook for ``log_id`` (nothing when ``spec`` is None)."""
+def _attempts_file(spec: str, log_id: str) -> Path:
+    return Path(spec.partition(":")[2]) / f"{log_id}.attempts"
+
+
+def record_attempt(spec: str | None, log_id: str) -> None:
+    """Test hook, at the start of a log: note this attempt; ``hang`` stops here until killed."""
     if not spec:
         return
-    action, _, folder = spec.partition(":")
-    marker = Path(folder) / f"{log_id}.{action}"
-    if action == "kill":
-        if marker.exists():
-            return
-        marker.write_text(str(os.getpid()))
+    with _attempts_file(spec, log_id).open("a") as f:
+        f.write(f"{os.getpid()}\n")
+    while spec.startswith("hang:"):
+        time.sleep(1.0)
+
+
+def inject_fault(spec: str | None, log_id: str) -> None:
+    """Test hook, between a log's data files and its shard: ``kill`` (first attempt) / ``crash``."""
+    if not spec:
+        return
+    action = spec.partition(":")[0]
+    first = len(_attempts_file(spec, log_id).read_text().split()) == 1
+    if action == "crash" or (action == "kill" and first):
         os.kill(os.getpid(), signal.SIGKILL)
-    elif action == "hang":
-        marker.write_text(str(os.getpid()))
-        while True:
-            time.sleep(1.0)
 
 
 def worker_name() -> str:
@@ -56,6 +64,7 @@ def run_one(log_dir: str | Path, dataroot: str | Path, options, fault: str | Non
     from nuav2.convert import convert_one_log
 
     t0 = time.perf_counter()
+    record_attempt(fault, Path(log_dir).name)
     result = convert_one_log(Path(log_dir), Path(dataroot), options,
                              after_write=(lambda log_id: inject_fault(fault, log_id)) if fault else None)
     result["summary"] = {"seconds": round(time.perf_counter() - t0, 3), "images": result.pop("images", 0),
