@@ -42,8 +42,21 @@ def synth_split(tmp_path_factory) -> Path:
 
 
 @pytest.fixture(scope="session")
-def reference_tables(synth_split: Path, tmp_path_factory) -> dict[str, bytes]:
-    """The tables of the plain ``--workers 1`` conversion, which every executor must reproduce."""
+def reference_out(synth_split: Path, tmp_path_factory) -> Path:
+    """The dataroot of the plain ``--workers 1`` conversion of the three logs."""
     out = tmp_path_factory.mktemp("executor_reference") / "out"
     assert convert(synth_split, out) == 0
-    return tables(out)
+    return out
+
+
+@pytest.fixture(scope="session")
+def reference_tables(reference_out: Path) -> dict[str, bytes]:
+    """The tables of the plain ``--workers 1`` conversion, which every executor must reproduce."""
+    return tables(reference_out)
+
+
+def infos_files(dataroot: Path, out: Path, *extra: str) -> dict[str, bytes]:
+    """``nuav2 infos`` of ``dataroot`` into ``out``: {file name: bytes}."""
+    argv = ["infos", str(dataroot), "--version", VERSION, "--out", str(out), "--no-progress", *extra]
+    assert main(argv) == 0
+    return {p.name: p.read_bytes() for p in sorted(out.iterdir())}

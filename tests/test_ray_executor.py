@@ -10,7 +10,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from test_executor_support import VERSION, convert, corrupt_copy, tables
+from test_executor_support import VERSION, convert, corrupt_copy, infos_files, tables
 
 from nuav2.convert import ConvertError, ConvertOptions
 from nuav2.executors.task import FAULT_ENV
@@ -18,7 +18,7 @@ from nuav2.nuscenes_db.shards import SHARDS_DIRNAME
 
 ray = pytest.importorskip("ray", reason="the ray package is not installed (pip install 'nuav2[ray]')")
 
-pytest_plugins = ["test_executor_support"]  # the synth_split and reference_tables fixtures
+pytest_plugins = ["test_executor_support"]  # the synth_split, reference_out and reference_tables fixtures
 
 
 def _children_named(names: set[str]) -> list[int]:
@@ -125,6 +125,11 @@ def test_a_log_that_kills_every_worker_is_retried_a_bounded_number_of_times(
     assert sorted(f["log_id"] for f in report["failed"]) == logs[:2]
     assert all("after 1 retries" in f["error"] for f in report["failed"])
     assert all(len(p.read_text().split()) == 2 for p in hook.glob("*.attempts"))  # 1 try + 1 retry each
+
+
+def test_ray_infos_are_byte_identical_to_one_process(local_ray, reference_out: Path, tmp_path: Path):
+    one = infos_files(reference_out, tmp_path / "one")
+    assert infos_files(reference_out, tmp_path / "ray", "--executor", "ray", "--workers", "2") == one
 
 
 def test_out_invisible_on_a_node_stops_with_an_error_naming_it(local_ray, tmp_path: Path):
