@@ -16,6 +16,7 @@ from __future__ import annotations
 import os
 import signal
 import socket
+import sys
 import time
 from pathlib import Path
 
@@ -63,13 +64,24 @@ def run_one(log_dir: str | Path, dataroot: str | Path, options, fault: str | Non
     """Convert one log (``options``: a :class:`nuav2.convert.ConvertOptions`) and time it."""
     from nuav2.convert import convert_one_log
 
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     record_attempt(fault, Path(log_dir).name)
     result = convert_one_log(Path(log_dir), Path(dataroot), options,
                              after_write=(lambda log_id: inject_fault(fault, log_id)) if fault else None)
-    result["summary"] = {"seconds": round(time.perf_counter() - t0, 3), "images": result.pop("images", 0),
-                         "mode": options.mode, "worker": worker_name()}
+    result["summary"] = {"seconds": round(time.perf_counter() - t0, 3),
+                         "cpu_seconds": round(time.process_time() - c0, 3), "images": result.pop("images", 0),
+                         "mode": options.mode, "worker": worker_name(), "peak_rss_mb": peak_rss_mb()}
     return result
+
+
+def peak_rss_mb() -> float | None:
+    """This process's peak resident memory so far (what --memory-per-task must cover), None if unknown."""
+    try:
+        import resource
+    except ImportError:
+        return None
+    kb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss  # kB on Linux, bytes on macOS
+    return round(kb / (2**20 if sys.platform == "darwin" else 2**10), 1)
 
 
 def failure(log_dir: str | Path, error: str, mode: str, worker: str | None = None) -> dict:
