@@ -198,7 +198,9 @@ def _collect(ray, pending: dict, dataroot: Path, options, progress: BatchProgres
             log_dir = pending.pop(ref)
             try:
                 r = ray.get(ref)
-            except ray.exceptions.RayError as e:
+            except ray.exceptions.RayTaskError as e:  # the task raised (run_one returns input errors)
+                r = failure(log_dir, f"Ray task raised {type(e.cause).__name__}: {e.cause}", options.mode)
+            except ray.exceptions.RayError as e:  # worker process or node died, past the retries
                 first = (str(e).strip().splitlines() or [""])[0]
                 r = failure(log_dir, f"Ray task failed after {options.max_retries} retries: "
                                      f"{type(e).__name__}: {first}", options.mode)
