@@ -117,7 +117,6 @@ def test_a_log_that_kills_every_worker_is_retried_a_bounded_number_of_times(
         shutil.copytree(synth_split / name, src / name)
     hook = tmp_path / "hook"
     hook.mkdir()
-    (hook / f"{logs[1]}.attempts").write_text("")  # so that only logs[0] crashes on its first attempt
     monkeypatch.setenv(FAULT_ENV, f"crash:{hook}")
     out = tmp_path / "out"
     assert convert(src, out, "--executor", "ray", "--max-retries", "1") == 2  # every log died
