@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import shutil
 from pathlib import Path
 
@@ -60,3 +61,25 @@ def infos_files(dataroot: Path, out: Path, *extra: str) -> dict[str, bytes]:
     argv = ["infos", str(dataroot), "--version", VERSION, "--out", str(out), "--no-progress", *extra]
     assert main(argv) == 0
     return {p.name: p.read_bytes() for p in sorted(out.iterdir())}
+
+
+def descendants_named(names: set[str]) -> list[int]:
+    """Pids of processes started by this one (at any depth) whose command name is in ``names``."""
+    parents: dict[int, int] = {}
+    comm: dict[int, str] = {}
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            text = stat.read_text()
+        except OSError:
+            continue
+        pid = int(text.split(" ", 1)[0])
+        comm[pid] = text[text.index("(") + 1:text.rindex(")")]
+        parents[pid] = int(text.rsplit(")", 1)[1].split()[1])
+    found = []
+    for pid, name in comm.items():
+        p = pid
+        while p in parents and p != os.getpid() and p > 1:
+            p = parents[p]
+        if p == os.getpid() and pid != os.getpid() and name in names:
+            found.append(pid)
+    return found

@@ -4,13 +4,12 @@ tables, a killed worker retried, a bad log reported once, resume, the shared-sto
 from __future__ import annotations
 
 import json
-import os
 import shutil
 import sys
 from pathlib import Path
 
 import pytest
-from test_executor_support import VERSION, convert, corrupt_copy, infos_files, tables
+from test_executor_support import VERSION, convert, corrupt_copy, descendants_named, infos_files, tables
 
 from nuav2.convert import ConvertError, ConvertOptions
 from nuav2.executors.task import FAULT_ENV
@@ -21,28 +20,6 @@ ray = pytest.importorskip("ray", reason="the ray package is not installed (pip i
 pytest_plugins = ["test_executor_support"]  # the synth_split, reference_out and reference_tables fixtures
 
 
-def _children_named(names: set[str]) -> list[int]:
-    """Pids of processes started by this one (at any depth) whose command name is in ``names``."""
-    parents: dict[int, int] = {}
-    comm: dict[int, str] = {}
-    for stat in Path("/proc").glob("[0-9]*/stat"):
-        try:
-            text = stat.read_text()
-        except OSError:
-            continue
-        pid = int(text.split(" ", 1)[0])
-        comm[pid] = text[text.index("(") + 1:text.rindex(")")]
-        parents[pid] = int(text.rsplit(")", 1)[1].split()[1])
-    found = []
-    for pid, name in comm.items():
-        p = pid
-        while p in parents and p != os.getpid() and p > 1:
-            p = parents[p]
-        if p == os.getpid() and pid != os.getpid() and name in names:
-            found.append(pid)
-    return found
-
-
 @pytest.fixture(scope="module")
 def local_ray():
     """One local Ray instance for the module; the executor uses it and leaves it running."""
@@ -51,7 +28,7 @@ def local_ray():
     ray.init(num_cpus=2, include_dashboard=False, object_store_memory=128 * 2**20, log_to_driver=False)
     yield ray
     ray.shutdown()
-    assert not _children_named({"raylet", "gcs_server"}), "Ray processes left behind after shutdown"
+    assert not descendants_named({"raylet", "gcs_server"}), "Ray processes left behind after shutdown"
 
 
 def test_ray_tables_are_identical_to_one_local_worker_and_a_rerun_resumes(

@@ -45,28 +45,26 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from nuav2.executors.ray_tasks import RayMissingError
     from nuav2.maptr.infos import export_infos
 
-    if args.executor == "ray":
-        from nuav2.executors.ray_tasks import RAY_MISSING, ray_available
-
-        if not ray_available():
-            print(f"error: {RAY_MISSING}", file=sys.stderr)
-            return 2
-
-    written = export_infos(
-        args.dataroot,
-        args.version,
-        args.out,
-        args.prefix,
-        args.splits,
-        args.max_sweeps,
-        tuple(args.patch),
-        args.path_root,
-        workers=max(1, args.workers),
-        executor=args.executor,
-        ray_address=args.ray_address,
-        progress=not args.no_progress,
-    )
+    try:
+        written = export_infos(
+            args.dataroot,
+            args.version,
+            args.out,
+            args.prefix,
+            args.splits,
+            args.max_sweeps,
+            tuple(args.patch),
+            args.path_root,
+            workers=max(1, args.workers),
+            executor=args.executor,
+            ray_address=args.ray_address,
+            progress=not args.no_progress,
+        )
+    except (RayMissingError, ConnectionError) as e:  # --executor ray without ray, or no cluster there
+        print(f"error: {e}", file=sys.stderr)
+        return 2
     print(json.dumps({split: str(path) for split, path in written.items()}, indent=1))
     return 0

@@ -39,16 +39,20 @@ DEFAULT_MEMORY_GB = {"native": 2.0, "warp": 4.0, "render": 8.0}
 def ray_available() -> bool:
     try:
         import_ray()
-    except ImportError:
+    except RayMissingError:
         return False
     return True
+
+
+class RayMissingError(ImportError):
+    """``--executor ray`` where the ray package is not installed."""
 
 
 def import_ray():
     try:
         import ray
     except ImportError as e:
-        raise ImportError(RAY_MISSING) from e
+        raise RayMissingError(RAY_MISSING) from e
     return ray
 
 
@@ -60,8 +64,14 @@ def connected(address: str | None = None, num_cpus: float | None = None) -> Iter
     if ray.is_initialized():
         yield ray
         return
-    if address or os.environ.get("RAY_ADDRESS"):
-        ray.init(address=address, log_to_driver=False, logging_level=logging.WARNING)
+    address = address or os.environ.get("RAY_ADDRESS") or None
+    if address:
+        check_reachable(address)
+        use_token_if_present()
+        try:
+            ray.init(address=address, log_to_driver=False, logging_level=logging.WARNING)
+        except (ConnectionError, RuntimeError, ValueError) as e:
+            raise ConnectionError(f"Ray cluster {address!r}: {(str(e).splitlines() or [''])[0]}") from e
     else:
         ray.init(num_cpus=num_cpus, include_dashboard=False, log_to_driver=False,
                  object_store_memory=LOCAL_OBJECT_STORE_BYTES, logging_level=logging.WARNING)
@@ -69,6 +79,32 @@ def connected(address: str | None = None, num_cpus: float | None = None) -> Iter
         yield ray
     finally:
         ray.shutdown()
+
+
+def use_token_if_present() -> None:
+    """Send this machine's Ray token when connecting by HOST:PORT, as Ray 2.60 does only for
+    ``address="auto"``: ``ray start --head`` enables token authentication by default, and a cluster
+    without it accepts a client that sends one. An explicit ``RAY_AUTH_MODE`` is respected."""
+    try:
+        from ray._private.authentication.authentication_token_setup import (
+            maybe_enable_token_auth_if_token_available,
+        )
+    except ImportError:  # another Ray version: RAY_AUTH_MODE / RAY_AUTH_TOKEN as Ray documents them
+        return
+    maybe_enable_token_auth_if_token_available(warn_if_disabled=False)
+
+
+def check_reachable(address: str, timeout_s: float = 10.0) -> None:
+    """Fail fast with one line when a HOST:PORT (or ray://HOST:PORT) address does not answer;
+    ``ray.init`` itself retries for minutes. Other forms (``auto``) are left to Ray."""
+    host, _, port = address.removeprefix("ray://").rpartition(":")
+    if not host or not port.isdigit():
+        return
+    try:
+        socket.create_connection((host, int(port)), timeout=timeout_s).close()
+    except OSError as e:
+        raise ConnectionError(f"Ray cluster {address!r} does not answer ({type(e).__name__}); "
+                              f"is `ray start --head` running there?") from e
 
 
 def marker_path(dataroot: Path, token: str) -> Path:
@@ -118,11 +154,20 @@ def check_shared_storage(ray, dataroot: Path, token: str) -> None:
     refs = {probe.options(num_cpus=0,
                           scheduling_strategy=NodeAffinitySchedulingStrategy(n["NodeID"], soft=False))
             .remote(str(dataroot), token): n for n in nodes}
-    bad = []
+    bad, broken = [], []
     for ref, node in refs.items():
-        seen = ray.get(ref)
+        where = f"node {node.get('NodeManagerAddress')}"
+        try:
+            seen = ray.get(ref)
+        except ray.exceptions.RayTaskError as e:  # e.g. this nuav2 is not installed there
+            lines = [line.strip() for line in str(e.cause).splitlines() if line.strip()]
+            broken.append(f"{where}: {lines[-1] if lines else type(e.cause).__name__}")
+            continue
         if seen["problem"] is not None:
-            bad.append(f"node {node.get('NodeManagerAddress')} ({seen['host']}): {seen['problem']}")
+            bad.append(f"{where} ({seen['host']}): {seen['problem']}")
+    if broken:
+        raise ConvertError("a Ray node cannot run nuav2's tasks; every node needs the same nuav2 (and Python "
+                           "environment) as the driver: " + "; ".join(broken))
     if bad:
         raise ConvertError(f"OUT {dataroot} is not visible on every Ray node; it must be a shared directory "
                            f"mounted at the same path everywhere: " + "; ".join(bad))
@@ -156,34 +201,43 @@ def slots(cluster: dict[str, float], res: dict) -> int:
 def run_ray(jobs: list[Path], dataroot: Path, options, progress: BatchProgress,
             fault: str | None = None) -> list[dict]:
     """Convert ``jobs`` as Ray tasks; returns one result per log (same shape as the local executor)."""
-    from nuav2.atomic import atomic_write_bytes
     from nuav2.convert import ConvertError
 
     if not jobs:
         return []
-    root = Path(dataroot).resolve()
     local_cpus = options.workers * (options.cpus_per_task or DEFAULT_CPUS[options.mode])
-    with connected(options.ray_address, num_cpus=local_cpus) as ray:
-        token = uuid.uuid4().hex
-        marker = marker_path(root, token)
-        atomic_write_bytes(marker, token.encode())
-        try:
-            check_shared_storage(ray, root, token)
-            cluster = ray.cluster_resources()
-            res = task_resources(cluster, options)
-            n_slots = slots(cluster, res)
-            if n_slots < 1:
-                raise ConvertError(f"no Ray node can hold one task ({res}); the cluster has {cluster}; "
-                                   f"lower --cpus-per-task / --memory-per-task / --gpus-per-task")
-            log.info("ray: %d logs, %s per task, %d at once", len(jobs), res, n_slots)
-            task = ray.remote(convert_log_task).options(max_retries=options.max_retries,
-                                                        retry_exceptions=False, **res)
-            quiet = replace(options, show_progress=False)
-            pending = {task.remote(str(d), str(root), quiet, token, fault): d for d in jobs}
-            return _collect(ray, pending, root, options, progress, n_slots)
-        finally:
-            with contextlib.suppress(OSError):
-                marker.unlink()
+    try:
+        with connected(options.ray_address, num_cpus=local_cpus) as ray:
+            return _run_connected(ray, jobs, Path(dataroot).resolve(), options, progress, fault)
+    except ConnectionError as e:
+        raise ConvertError(f"--ray-address: {e}") from e
+
+
+def _run_connected(ray, jobs: list[Path], root: Path, options, progress: BatchProgress,
+                   fault: str | None) -> list[dict]:
+    from nuav2.atomic import atomic_write_bytes
+    from nuav2.convert import ConvertError
+
+    token = uuid.uuid4().hex
+    marker = marker_path(root, token)
+    atomic_write_bytes(marker, token.encode())
+    try:
+        check_shared_storage(ray, root, token)
+        cluster = ray.cluster_resources()
+        res = task_resources(cluster, options)
+        n_slots = slots(cluster, res)
+        if n_slots < 1:
+            raise ConvertError(f"no Ray node can hold one task ({res}); the cluster has {cluster}; "
+                               f"lower --cpus-per-task / --memory-per-task / --gpus-per-task")
+        log.info("ray: %d logs, %s per task, %d at once", len(jobs), res, n_slots)
+        task = ray.remote(convert_log_task).options(max_retries=options.max_retries,
+                                                    retry_exceptions=False, **res)
+        quiet = replace(options, show_progress=False)
+        pending = {task.remote(str(d), str(root), quiet, token, fault): d for d in jobs}
+        return _collect(ray, pending, root, options, progress, n_slots)
+    finally:
+        with contextlib.suppress(OSError):
+            marker.unlink()
 
 
 def _collect(ray, pending: dict, dataroot: Path, options, progress: BatchProgress,
