@@ -9,6 +9,7 @@ import signal
 import socket
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -58,6 +59,9 @@ def ray_head():
     finally:
         head.send_signal(signal.SIGTERM)
         head.wait(60)
+        current = Path(tempfile.gettempdir()) / "ray" / "ray_current_cluster"  # Ray's pointer to this head
+        if current.is_file() and current.read_text().strip().endswith(f":{port}"):
+            current.unlink()
     assert not descendants_named({"raylet", "gcs_server"}), "the head left Ray processes behind"
 
 

@@ -54,6 +54,23 @@ def test_ray_tables_are_identical_to_one_local_worker_and_a_rerun_resumes(
     assert tables(out) == reference_tables
 
 
+def test_ray_warp_mode_writes_the_same_tables_and_images_as_one_local_worker(
+        local_ray, synth_split: Path, tmp_path: Path):
+    src = tmp_path / "src"
+    src.mkdir()
+    for log_dir in sorted(synth_split.iterdir())[:2]:
+        (src / log_dir.name).symlink_to(log_dir, target_is_directory=True)
+    warp = ("--mode", "warp", "--scale", "0.125")
+    assert convert(src, tmp_path / "local", *warp) == 0
+    assert convert(src, tmp_path / "ray", *warp, "--executor", "ray") == 0
+    assert tables(tmp_path / "ray") == tables(tmp_path / "local")
+    images = {p.relative_to(tmp_path / "local"): p.read_bytes()
+              for p in sorted((tmp_path / "local" / "samples").rglob("*.jpg"))}
+    assert len(images) == 2 * 5 * 6  # 2 logs x 5 samples x 6 nuScenes cameras
+    assert images == {p.relative_to(tmp_path / "ray"): p.read_bytes()
+                      for p in sorted((tmp_path / "ray" / "samples").rglob("*.jpg"))}
+
+
 def test_a_worker_killed_mid_log_is_retried_and_the_tables_stay_identical(
         local_ray, synth_split: Path, reference_tables: dict, tmp_path: Path, monkeypatch):
     hook = tmp_path / "hook"

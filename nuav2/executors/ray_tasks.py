@@ -73,7 +73,8 @@ def connected(address: str | None = None, num_cpus: float | None = None) -> Iter
         except (ConnectionError, RuntimeError, ValueError) as e:
             raise ConnectionError(f"Ray cluster {address!r}: {(str(e).splitlines() or [''])[0]}") from e
     else:
-        ray.init(num_cpus=num_cpus, include_dashboard=False, log_to_driver=False,
+        # "local": a new instance, even where `ray start` left a cluster (or its address file) behind
+        ray.init(address="local", num_cpus=num_cpus, include_dashboard=False, log_to_driver=False,
                  object_store_memory=LOCAL_OBJECT_STORE_BYTES, logging_level=logging.WARNING)
     try:
         yield ray
@@ -124,8 +125,11 @@ def storage_problem(dataroot: str | Path, token: str) -> str | None:
 
 
 def probe_node(dataroot: str, token: str) -> dict:
-    """Ray task pinned to one node: does it see OUT?"""
-    return {"host": socket.gethostname(), "problem": storage_problem(dataroot, token)}
+    """Ray task pinned to one node: which nuav2 runs there, and does it see OUT?"""
+    import nuav2
+
+    return {"host": socket.gethostname(), "problem": storage_problem(dataroot, token),
+            "nuav2": nuav2.__version__}
 
 
 def convert_log_task(log_dir: str, dataroot: str, options, token: str, fault: str | None) -> dict:
@@ -147,6 +151,7 @@ def check_shared_storage(ray, dataroot: Path, token: str) -> None:
     """Run :func:`probe_node` on every alive node; raise ConvertError naming each node that cannot see OUT."""
     from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
 
+    import nuav2
     from nuav2.convert import ConvertError
 
     nodes = [n for n in ray.nodes() if n.get("Alive")]
@@ -163,7 +168,9 @@ def check_shared_storage(ray, dataroot: Path, token: str) -> None:
             lines = [line.strip() for line in str(e.cause).splitlines() if line.strip()]
             broken.append(f"{where}: {lines[-1] if lines else type(e.cause).__name__}")
             continue
-        if seen["problem"] is not None:
+        if seen["nuav2"] != nuav2.__version__:
+            broken.append(f"{where} ({seen['host']}): nuav2 {seen['nuav2']} (driver: {nuav2.__version__})")
+        elif seen["problem"] is not None:
             bad.append(f"{where} ({seen['host']}): {seen['problem']}")
     if broken:
         raise ConvertError("a Ray node cannot run nuav2's tasks; every node needs the same nuav2 (and Python "
