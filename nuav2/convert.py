@@ -17,14 +17,13 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
-from tqdm import tqdm
-
 from nuav2.atomic import atomic_write_json
 from nuav2.image_sources import MODES, image_source_for, write_quality_table
 from nuav2.nuscenes_db import shards as sh
 from nuav2.nuscenes_db.images import IMAGE_LINKS, NativeImages
 from nuav2.nuscenes_db.merge import merge_shards
 from nuav2.nuscenes_db.writer import WRITER_FORMAT, WriterOptions, write_log
+from nuav2.progress import progress_bar
 from nuav2.rig import RigSpecError, load_rig
 
 log = logging.getLogger(__name__)
@@ -166,7 +165,8 @@ def convert_one_log(log_dir: Path, dataroot: Path, options: ConvertOptions) -> d
 
 
 def _run(jobs: list[Path], dataroot: Path, options: ConvertOptions) -> list[dict]:
-    bar = tqdm(total=len(jobs), desc="convert", unit="log", disable=not options.show_progress or not jobs)
+    bar = progress_bar(total=len(jobs), desc="convert", unit="log",
+                       disable=not options.show_progress or not jobs)
     results = []
     try:
         if options.workers == 1 or len(jobs) <= 1:

@@ -22,9 +22,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
 
 from nuav2.nuscenes_db.validate_map import devkit_load_maps, validate_map_expansion
+from nuav2.progress import progress_bar
 
 TABLES = ("category", "attribute", "visibility", "instance", "sensor", "calibrated_sensor", "ego_pose",
           "log", "scene", "sample", "sample_data", "sample_annotation", "map")
@@ -730,8 +730,8 @@ class _Checker:
         modality = self._sample_data_columns()["modality"]
         cam, lidar = MODALITIES.index("camera"), MODALITIES.index("lidar")
         listing: dict[str, dict[str, os.DirEntry]] = {}
-        for i in tqdm(range(len(names)), desc="sample_data files", unit="file", disable=not self.progress,
-                      mininterval=1.0):
+        for i in progress_bar(range(len(names)), desc="sample_data files", unit="file",
+                              disable=not self.progress, mininterval=1.0):
             rel = names[i]
             if rel is None:
                 continue

@@ -21,7 +21,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
 
 from nuav2.geometry import F64, egoS_T_egoT_from_heights
 from nuav2.nuscenes_db import annotations as ann_mod
@@ -32,6 +31,7 @@ from nuav2.nuscenes_db.lidar_top import lidar_T_egoS, sweep_to_pcd_rows, write_p
 from nuav2.nuscenes_db.map_frame import MapFrame, map_frame_for
 from nuav2.nuscenes_db.tables import PER_LOG_TABLES
 from nuav2.nuscenes_db.tokens import make_token
+from nuav2.progress import progress_bar
 from nuav2.rig import Rig
 from nuav2.scene import SceneLog, VectorMap
 
@@ -205,8 +205,8 @@ def _write_lidar_top(scene: SceneLog, timeline: Timeline, lidar_ch: str, lidar_T
     """Each source sweep moved into the output LIDAR_TOP frame; fills unknown box point counts
     (``boxes.num_lidar_pts == -1``) from the key sweeps. Returns {(channel, index): filename}."""
     filenames: dict[tuple[str, int], str] = {}
-    for f in tqdm(timeline.frames[lidar_ch], desc=f"{scene.log_id[:8]} {lidar_ch}", unit="sweep", leave=False,
-                  disable=not options.show_progress):
+    for f in progress_bar(timeline.frames[lidar_ch], desc=f"{scene.log_id[:8]} {lidar_ch}", unit="sweep",
+                          leave=False, disable=not options.show_progress):
         points = scene.sweep(scene.lidar_sweeps[f.index])
         rel = data_filename(scene.log_id, lidar_ch, f.timestamp_us, f.is_key_frame, ".pcd.bin")
         write_pcd_bin(files.path(rel), sweep_to_pcd_rows(points, lidar_T_ego))
@@ -227,8 +227,8 @@ def _write_cameras(scene: SceneLog, timeline: Timeline, out_rig: Rig, images: Im
     # Time-major order: a renderer that caches source views reuses them across target cameras.
     cam_frames = sorted((f for ch in shots for f in timeline.frames[ch]),
                         key=lambda f: (f.timestamp_us, f.channel))
-    for f in tqdm(cam_frames, desc=f"{scene.log_id[:8]} cameras", unit="img", leave=False,
-                  disable=not options.show_progress or not cam_frames):
+    for f in progress_bar(cam_frames, desc=f"{scene.log_id[:8]} cameras", unit="img", leave=False,
+                          disable=not options.show_progress or not cam_frames):
         shot = shots[f.channel][f.index]
         cam = out_rig.camera(f.channel)
         rel = data_filename(scene.log_id, f.channel, f.timestamp_us, f.is_key_frame, images.extension(shot))
