@@ -361,7 +361,7 @@ def test_synthetic_gt_matches_the_av2_map_api_at_every_keyframe(synthetic_db, nu
     log_dir = Path((synthetic_db / "source_log.txt").read_text())
     av2_map = ArgoverseStaticMap.from_map_dir(log_dir / "map", build_raster=False)
     (meta,) = json.loads((synthetic_db / VERSION / "nuav2_logs.json").read_text())
-    city_T_global = translation_T(*meta["city_xy_offset"], 0.0)
+    city_T_global = translation_T(*meta["city_offset"])
     gt = gt_vectors_for_split(synthetic_db, VERSION, "all")
     for token, ours in gt.items():
         ref = av2_reference_vectors(av2_map, city_T_global @ global_T_lidar_of_sample(nusc, token))

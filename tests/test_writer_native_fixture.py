@@ -183,7 +183,7 @@ def test_annotations_match_av2_boxes_in_the_city_frame(nusc: NuScenes, native_db
     av2 = pd.read_feather(log_dir / "annotations.feather")
     av2 = av2[av2.timestamp_ns == FIXTURE_SWEEP_NS].set_index("track_uuid")
     city_T_ego = read_city_SE3_ego(log_dir)[FIXTURE_SWEEP_NS]
-    offset = np.array(_log_meta(native_db)["city_xy_offset"] + [0.0])
+    offset = np.array(_log_meta(native_db)["city_offset"])
     by_track = {}
     for inst in nusc.instance:
         ann = nusc.get("sample_annotation", inst["first_annotation_token"])

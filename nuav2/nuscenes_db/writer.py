@@ -5,8 +5,9 @@ LIDAR_TOP in the output ego frame, whose origin is at ground level) and an
 :class:`~nuav2.nuscenes_db.images.ImageSource`; everything else is the same:
 
 - ego poses of the output vehicle frame: ``city_T_egoT = city_T_egoS(t) @ egoS_T_egoT``, moved
-  into the log's nuScenes global frame (the city frame shifted by ``map_frame``), one per
-  sample_data at its own timestamp;
+  into the log's nuScenes global frame (the city frame minus the rigid offset of ``map_frame``:
+  whole metres in x, y and the ground height under the first pose in z), one per sample_data
+  at its own timestamp;
 - the virtual LIDAR_TOP sweep re-expressed in the output rig's LIDAR_TOP frame;
 - annotations at the samples, in the global frame.
 
@@ -28,7 +29,7 @@ from nuav2.nuscenes_db import records as rec
 from nuav2.nuscenes_db.images import CameraShot, ImageSource
 from nuav2.nuscenes_db.keyframes import KEY_IMAGE_TOLERANCE_NS, Timeline, build_timeline, plan_samples
 from nuav2.nuscenes_db.lidar_top import lidar_T_egoS, sweep_to_pcd_rows, write_pcd_bin
-from nuav2.nuscenes_db.map_frame import MapFrame, map_frame_for
+from nuav2.nuscenes_db.map_frame import OFFSET_KEY, MapFrame, map_frame_for
 from nuav2.nuscenes_db.tables import PER_LOG_TABLES
 from nuav2.nuscenes_db.tokens import make_token
 from nuav2.progress import progress_bar
@@ -38,7 +39,7 @@ from nuav2.scene import SceneLog, VectorMap
 log = logging.getLogger(__name__)
 
 # Bump when what a shard holds changes, so old shards are redone instead of merged.
-WRITER_FORMAT = 1
+WRITER_FORMAT = 2  # 2: global frame shifted in z too (city_offset [x, y, z])
 
 
 @dataclass(frozen=True)
@@ -68,6 +69,21 @@ def map_points_city_xy(scene: SceneLog) -> F64:
         pts += [pc.polygon[:, :2] for pc in vm.ped_crossings.values()]
         pts += [da.boundary[:, :2] for da in vm.drivable_areas.values()]
     return np.concatenate([np.asarray(p, dtype=np.float64).reshape(-1, 2) for p in pts])
+
+
+def ground_z_city(scene: SceneLog) -> float:
+    """Ground height under the ego at the log's first pose: the global frame's z = 0.
+
+    From the ground-height raster where the log has one and it covers that point; otherwise the
+    first pose's height minus the source rig's origin height (the output ego origin is on the
+    ground, so its first pose then sits at global z = 0 exactly). Rounded to 1 mm.
+    """
+    city_xyz = np.asarray(scene.city_T_ego[0, :3, 3], dtype=np.float64)
+    if scene.ground_height is not None:
+        z = float(np.asarray(scene.ground_height.height_at(city_xyz[None, :2])).reshape(-1)[0])
+        if np.isfinite(z):
+            return round(z, 3)
+    return round(float(city_xyz[2] - scene.rig.origin_height_m), 3)
 
 
 def write_map(scene: SceneLog, frame: MapFrame, dataroot: Path) -> str:
@@ -126,7 +142,7 @@ def _write_log(scene: SceneLog, out_rig: Rig, images: ImageSource, files: _Files
     lidar_ch = out_rig.keyframe_lidar
     egoT_T_lidar = out_rig.lidar(lidar_ch).ego_T_lidar
     egoS_T_egoT = egoS_T_egoT_from_heights(scene.rig.origin_height_m, out_rig.origin_height_m)
-    frame = map_frame_for(scene.city, log_id, map_points_city_xy(scene))
+    frame = map_frame_for(scene.city, log_id, map_points_city_xy(scene), ground_z_city(scene))
     global_T_city = frame.global_T_city
 
     # Timeline: which sweeps are samples, which images are key frames, unique µs labels.
@@ -188,7 +204,7 @@ def _write_log(scene: SceneLog, out_rig: Rig, images: ImageSource, files: _Files
     meta = {
         "log_id": log_id, "source": scene.source, "split": scene.split, "city": scene.city,
         "city_frame": scene.city_frame, "location": frame.location,
-        "city_xy_offset": [float(v) for v in frame.city_xy_offset],
+        OFFSET_KEY: [float(v) for v in frame.city_offset],
         "source_rig": scene.rig.name, "source_origin_height_m": float(scene.rig.origin_height_m),
         "output_rig": out_rig.name, "output_origin_height_m": float(out_rig.origin_height_m),
         "log_token": log_token, "scene_token": scene_token,
