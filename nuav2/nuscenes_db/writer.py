@@ -152,6 +152,8 @@ def _write_log(scene: SceneLog, out_rig: Rig, images: ImageSource, files: _Files
     shots = images.shots(scene, out_rig, sweep_ns[key_idx])
     timeline = build_timeline(lidar_ch, sweep_ns, key_idx, _camera_times(shots),
                               options.key_image_tolerance_ns)
+    log.info("log %s: %d samples from %d sweeps, %d cameras (%s)", log_id, timeline.num_samples,
+             len(sweep_ns), len(shots), ", ".join(shots) or "none")
 
     scene_token = make_token(log_id, "scene", "")
     log_token = make_token(log_id, "log", "")
