@@ -512,6 +512,32 @@ def read_scene_table(dataroot: str | Path, version: str) -> SceneTable:
     return table
 
 
+def available_splits(dataroot: str | Path, version: str) -> dict[str, list[str]]:
+    """{split name: scene names} a consumer can ask for: ``<version>/splits.json`` (which wins on a
+    name clash), then each of the devkit's built-in nuScenes lists that has scenes in this database."""
+    folder = Path(dataroot) / version
+    try:
+        present = {s.get("name") for s in json.loads((folder / "scene.json").read_text())}
+    except (OSError, ValueError, AttributeError) as e:
+        raise ValueError(f"{folder / 'scene.json'}: cannot read the scene table ({e})") from None
+    out: dict[str, list[str]] = {}
+    from nuscenes.utils.splits import create_splits_scenes
+
+    for name, scenes in create_splits_scenes().items():
+        if any(s in present for s in scenes):
+            out[name] = [s for s in scenes if s in present]
+    path = folder / "splits.json"
+    if path.is_file():
+        try:
+            data = json.loads(path.read_text())
+        except (OSError, json.JSONDecodeError) as e:
+            raise ValueError(f"{path}: cannot read splits ({e})") from None
+        if not isinstance(data, dict) or not all(isinstance(v, list) for v in data.values()):
+            raise ValueError(f"{path}: expected {{split name: [scene names]}}")
+        out.update({k: list(v) for k, v in data.items()})
+    return out
+
+
 def existing_splits(
     dataroot: str | Path, version: str, scenes: Sequence[str]
 ) -> dict[str, dict[str, list[str]]]:

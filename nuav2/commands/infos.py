@@ -37,8 +37,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from nuav2.cli import require_database
     from nuav2.maptr.infos import export_infos
 
+    require_database(args.dataroot, args.version)
     written = export_infos(
         args.dataroot,
         args.version,
