@@ -236,7 +236,8 @@ def test_info_annotation_is_the_vectorized_gt(infos, synthetic_db):
 
 
 def test_infos_for_unknown_split_name_the_splits_file(synthetic_db, tmp_path, capsys):
-    assert main(["infos", str(synthetic_db), "--version", VERSION, "--out", str(tmp_path), "--splits", "nope"]) == 2
+    argv = ["infos", str(synthetic_db), "--version", VERSION, "--out", str(tmp_path), "--splits", "nope"]
+    assert main(argv) == 2
     err = capsys.readouterr().err
     assert "splits.json" in err and len(err.strip().splitlines()) == 1
 
@@ -463,7 +464,8 @@ def test_viz_cli_renders_gt_and_predictions(synthetic_db, nusc, tmp_path, capsys
     for cls, color in CLASS_COLORS_RGB.items():
         assert np.any(np.all(np.abs(rgb - np.array(color)) <= 2, axis=1)), f"no {cls} pixels drawn"
     capsys.readouterr()
-    assert main(["viz", str(synthetic_db), "--version", VERSION, "--sample", "0" * 32, "--out", str(out)]) == 2
+    argv = ["viz", str(synthetic_db), "--version", VERSION, "--sample", "0" * 32, "--out", str(out)]
+    assert main(argv) == 2
     assert "--sample" in capsys.readouterr().err
 
 
