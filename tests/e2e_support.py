@@ -1,0 +1,88 @@
+"""Databases exactly as ``nuav2 convert`` writes them, built once per test session (no tests here).
+
+Every consumer test runs on these, never on a hand-written table or sidecar:
+
+- ``native_fixture_db``: the real AV2 fixture log (with calibration and blank images at real pose
+  times, see ``test_writer_support``) converted in native mode;
+- ``synth_log`` / ``native_synth_db`` / ``warp_db``: a small synthetic log (``nuav2 synth``)
+  converted natively and by depth warp into the nuScenes rig;
+- ``render_db``: a tiny synthetic log reconstructed with the ``fast`` preset and rendered into
+  the nuScenes rig at 1/16 scale (the costly one: ~25 s of CPU);
+- ``two_run_db``: two synthetic logs from two split directories converted by two runs into one OUT.
+
+Conversions run under umask 022 through the command line (``nuav2.cli.main``).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from e2e_helpers import FIXTURE_ID, SYNTH_SECONDS, cli, convert, imaged_copy
+
+
+@pytest.fixture(scope="session")
+def native_fixture_db(av2_fixture_log: Path, av2_fixture_calibration: Path, tmp_path_factory) -> Path:
+    src = tmp_path_factory.mktemp("e2e_fixture_src") / "val"
+    imaged_copy(av2_fixture_log, av2_fixture_calibration, src, FIXTURE_ID)
+    out = tmp_path_factory.mktemp("e2e_native") / "out"
+    convert(src, out)
+    return out
+
+
+@pytest.fixture(scope="session")
+def synth_log(tmp_path_factory) -> Path:
+    code, stdout, stderr = cli("synth", tmp_path_factory.mktemp("e2e_synth"), "--seed", "3",
+                               "--seconds", SYNTH_SECONDS)
+    assert code == 0, stderr
+    return Path(json.loads(stdout)["log_dir"])
+
+
+@pytest.fixture(scope="session")
+def native_synth_db(synth_log: Path, tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("e2e_native_synth") / "out"
+    convert(synth_log.parent, out)
+    return out
+
+
+@pytest.fixture(scope="session")
+def warp_db(synth_log: Path, tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("e2e_warp") / "out"
+    convert(synth_log.parent, out, "--mode", "warp", "--rig", "nuscenes", "--scale", "0.25")
+    return out
+
+
+@pytest.fixture(scope="session")
+def tiny_synth_log(tmp_path_factory) -> Path:
+    """Small enough for a CI-sized reconstruction (the test_recon_pipeline log)."""
+    from nuav2.synth import SynthConfig, generate_log
+
+    config = SynthConfig(seconds=0.5, image_scale=1 / 16, lidar_azimuth_steps=256, n_parked=2, n_moving=2,
+                         n_pedestrians=0, map_margin_m=30.0)
+    return generate_log(tmp_path_factory.mktemp("e2e_tiny_synth"), seed=3, config=config)
+
+
+@pytest.fixture(scope="session")
+def render_db(tiny_synth_log: Path, tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("e2e_render") / "out"
+    convert(tiny_synth_log.parent, out, "--mode", "render", "--recon-preset", "fast", "--scale", "0.0625")
+    return out
+
+
+@pytest.fixture(scope="session")
+def synth_val_log(tmp_path_factory) -> Path:
+    """A second synthetic log (another seed: another place and clock), in a ``val`` split dir."""
+    code, stdout, stderr = cli("synth", tmp_path_factory.mktemp("e2e_synth_val"), "--seed", "4",
+                               "--split", "val", "--seconds", SYNTH_SECONDS)
+    assert code == 0, stderr
+    return Path(json.loads(stdout)["log_dir"])
+
+
+@pytest.fixture(scope="session")
+def two_run_db(synth_log: Path, synth_val_log: Path, tmp_path_factory) -> tuple[Path, list]:
+    """(OUT, [summary of run 1, summary of run 2]): the train split converted, then val, into one OUT."""
+    out = tmp_path_factory.mktemp("e2e_two_runs") / "out"
+    first = convert(synth_log.parent, out)
+    second = convert(synth_val_log.parent, out)
+    return out, [first, second]
