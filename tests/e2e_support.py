@@ -23,11 +23,16 @@ from e2e_helpers import FIXTURE_ID, SYNTH_SECONDS, cli, convert, imaged_copy
 
 
 @pytest.fixture(scope="session")
-def native_fixture_db(av2_fixture_log: Path, av2_fixture_calibration: Path, tmp_path_factory) -> Path:
-    src = tmp_path_factory.mktemp("e2e_fixture_src") / "val"
-    imaged_copy(av2_fixture_log, av2_fixture_calibration, src, FIXTURE_ID)
+def fixture_log(av2_fixture_log: Path, av2_fixture_calibration: Path, tmp_path_factory) -> Path:
+    """The real fixture log in a ``val`` split dir, with calibration and blank camera images."""
+    return imaged_copy(av2_fixture_log, av2_fixture_calibration, tmp_path_factory.mktemp("e2e_src") / "val",
+                       FIXTURE_ID)
+
+
+@pytest.fixture(scope="session")
+def native_fixture_db(fixture_log: Path, tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("e2e_native") / "out"
-    convert(src, out)
+    convert(fixture_log.parent, out)
     return out
 
 
