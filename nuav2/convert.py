@@ -35,7 +35,7 @@ REPORT_FILE = "convert_report.json"
 DEFAULT_RIG = "nuscenes"
 
 
-class ConvertError(RuntimeError):
+class ConvertError(ValueError):
     """The conversion as a whole cannot go on (bad arguments, no log converted)."""
 
 
