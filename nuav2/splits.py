@@ -395,15 +395,20 @@ def load_regions(path: str | Path) -> tuple[list[Region], str]:
     return regions, straddle
 
 
-def load_lists(path: str | Path) -> dict[str, list[str]]:
-    """``{"train": [...], "val": [...], "test": [...]}`` of scene names, tokens or log ids."""
-    path = Path(path)
+def _read_json_lists(path: Path, what: str, expected: str) -> dict[str, list]:
+    """A JSON object of lists (``expected`` describes it in the error), a ValueError naming ``path``."""
     try:
         data = json.loads(path.read_text())
     except (OSError, json.JSONDecodeError) as e:
-        raise ValueError(f"{path}: cannot read lists ({e})") from None
+        raise ValueError(f"{path}: cannot read {what} ({e})") from None
     if not isinstance(data, dict) or not all(isinstance(v, list) for v in data.values()):
-        raise ValueError(f"{path}: expected {{split: [scene names, tokens or log ids]}}")
+        raise ValueError(f"{path}: expected {expected}")
+    return data
+
+
+def load_lists(path: str | Path) -> dict[str, list[str]]:
+    """``{"train": [...], "val": [...], "test": [...]}`` of scene names, tokens or log ids."""
+    data = _read_json_lists(Path(path), "lists", "{split: [scene names, tokens or log ids]}")
     return {k: [str(x) for x in v] for k, v in data.items()}
 
 
@@ -526,16 +531,15 @@ def available_splits(dataroot: str | Path, version: str) -> dict[str, list[str]]
     for name, scenes in create_splits_scenes().items():
         if any(s in present for s in scenes):
             out[name] = [s for s in scenes if s in present]
-    path = folder / "splits.json"
-    if path.is_file():
-        try:
-            data = json.loads(path.read_text())
-        except (OSError, json.JSONDecodeError) as e:
-            raise ValueError(f"{path}: cannot read splits ({e})") from None
-        if not isinstance(data, dict) or not all(isinstance(v, list) for v in data.values()):
-            raise ValueError(f"{path}: expected {{split name: [scene names]}}")
-        out.update({k: list(v) for k, v in data.items()})
+    out.update(_read_splits_file(folder / "splits.json"))
     return out
+
+
+def _read_splits_file(path: Path) -> dict[str, list[str]]:
+    """``splits.json`` as {split name: [scene names]}; {} when absent, a ValueError naming it when bad."""
+    if not path.is_file():
+        return {}
+    return _read_json_lists(path, "splits", "{split name: [scene names]}")
 
 
 def existing_splits(
@@ -544,18 +548,11 @@ def existing_splits(
     """Splits already defined for this database: ``<version>/splits.json`` and the devkit's lists."""
     present = set(scenes)
     out: dict[str, dict[str, list[str]]] = {}
-    path = Path(dataroot) / version / "splits.json"
-    if path.is_file():
-        try:
-            data = json.loads(path.read_text())
-        except (OSError, json.JSONDecodeError) as e:
-            raise ValueError(f"{path}: cannot read splits ({e})") from None
-        if not isinstance(data, dict) or not all(isinstance(v, list) for v in data.values()):
-            raise ValueError(f"{path}: expected {{split name: [scene names]}}")
-        for prefix in SPLIT_PREFIXES:
-            if f"{prefix}train" in data:
-                out[f"splits.json:{prefix}*"] = {
-                    k: [s for s in data.get(f"{prefix}{k}", []) if s in present] for k in SPLITS}
+    data = _read_splits_file(Path(dataroot) / version / "splits.json")
+    for prefix in SPLIT_PREFIXES:
+        if f"{prefix}train" in data:
+            out[f"splits.json:{prefix}*"] = {
+                k: [s for s in data.get(f"{prefix}{k}", []) if s in present] for k in SPLITS}
     from nuscenes.utils.splits import create_splits_scenes
 
     builtin = create_splits_scenes()

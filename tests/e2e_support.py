@@ -31,31 +31,36 @@ def fixture_log(av2_fixture_log: Path, av2_fixture_calibration: Path, tmp_path_f
 
 @pytest.fixture(scope="session")
 def native_fixture_db(fixture_log: Path, tmp_path_factory) -> Path:
-    out = tmp_path_factory.mktemp("e2e_native") / "out"
-    convert(fixture_log.parent, out)
-    return out
+    return converted(tmp_path_factory, "e2e_native", fixture_log.parent)
 
 
-@pytest.fixture(scope="session")
-def synth_log(tmp_path_factory) -> Path:
-    code, stdout, stderr = cli("synth", tmp_path_factory.mktemp("e2e_synth"), "--seed", "3",
-                               "--seconds", SYNTH_SECONDS)
+def synth(root: Path, seed: int, split: str = "train") -> Path:
+    """``nuav2 synth ROOT --seed SEED --split SPLIT``: the log dir."""
+    code, stdout, stderr = cli("synth", root, "--seed", seed, "--split", split, "--seconds", SYNTH_SECONDS)
     assert code == 0, stderr
     return Path(json.loads(stdout)["log_dir"])
 
 
 @pytest.fixture(scope="session")
-def native_synth_db(synth_log: Path, tmp_path_factory) -> Path:
-    out = tmp_path_factory.mktemp("e2e_native_synth") / "out"
-    convert(synth_log.parent, out)
+def synth_log(tmp_path_factory) -> Path:
+    return synth(tmp_path_factory.mktemp("e2e_synth"), 3)
+
+
+def converted(tmp_path_factory, name: str, src: Path, *flags: str) -> Path:
+    out = tmp_path_factory.mktemp(name) / "out"
+    convert(src, out, *flags)
     return out
 
 
 @pytest.fixture(scope="session")
+def native_synth_db(synth_log: Path, tmp_path_factory) -> Path:
+    return converted(tmp_path_factory, "e2e_native_synth", synth_log.parent)
+
+
+@pytest.fixture(scope="session")
 def warp_db(synth_log: Path, tmp_path_factory) -> Path:
-    out = tmp_path_factory.mktemp("e2e_warp") / "out"
-    convert(synth_log.parent, out, "--mode", "warp", "--rig", "nuscenes", "--scale", "0.25")
-    return out
+    return converted(tmp_path_factory, "e2e_warp", synth_log.parent, "--mode", "warp", "--rig", "nuscenes",
+                     "--scale", "0.25")
 
 
 @pytest.fixture(scope="session")
@@ -70,18 +75,14 @@ def tiny_synth_log(tmp_path_factory) -> Path:
 
 @pytest.fixture(scope="session")
 def render_db(tiny_synth_log: Path, tmp_path_factory) -> Path:
-    out = tmp_path_factory.mktemp("e2e_render") / "out"
-    convert(tiny_synth_log.parent, out, "--mode", "render", "--recon-preset", "fast", "--scale", "0.0625")
-    return out
+    return converted(tmp_path_factory, "e2e_render", tiny_synth_log.parent, "--mode", "render",
+                     "--recon-preset", "fast", "--scale", "0.0625")
 
 
 @pytest.fixture(scope="session")
 def synth_val_log(tmp_path_factory) -> Path:
     """A second synthetic log (another seed: another place and clock), in a ``val`` split dir."""
-    code, stdout, stderr = cli("synth", tmp_path_factory.mktemp("e2e_synth_val"), "--seed", "4",
-                               "--split", "val", "--seconds", SYNTH_SECONDS)
-    assert code == 0, stderr
-    return Path(json.loads(stdout)["log_dir"])
+    return synth(tmp_path_factory.mktemp("e2e_synth_val"), 4, "val")
 
 
 @pytest.fixture(scope="session")
