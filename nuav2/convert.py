@@ -32,7 +32,6 @@ from nuav2.rig import RigSpecError, load_rig
 log = logging.getLogger(__name__)
 
 REPORT_FILE = "convert_report.json"
-DEFAULT_RIG = "nuscenes"
 
 
 class ConvertError(ValueError):
@@ -49,7 +48,7 @@ class ConvertOptions:
     calibration_dir: Path | None = None
     require_cameras: bool = True
     show_progress: bool = True
-    rig: str = DEFAULT_RIG  # warp / render: target rig name or spec path
+    rig: str = "nuscenes"  # warp / render: target rig name or spec path (the CLI refuses it in native)
     scale: float = 1.0  # warp / render: target resolution factor
     recon_preset: str = "default"  # render: reconstruction budget preset
     min_confidence: float = 0.0  # render: drop sample times where a camera's confidence is below
@@ -67,11 +66,6 @@ class ConvertOptions:
             raise ConvertError(f"--version must be a plain directory name, got {self.version!r}")
         if self.calibration_dir is not None and not Path(self.calibration_dir).is_dir():
             raise ConvertError(f"--calibration {self.calibration_dir}: calibration directory not found")
-        if self.mode == "native" and (self.rig != DEFAULT_RIG or self.scale != 1.0):
-            raise ConvertError("--rig and --scale apply to --mode warp and render; native mode keeps the "
-                               "log's own cameras and images")
-        if self.mode != "render" and (self.recon_preset != "default" or self.min_confidence != 0.0):
-            raise ConvertError("--recon-preset and --min-confidence apply to --mode render only")
         if self.mode == "render":
             from nuav2.recon import ReconConfig
 
