@@ -18,6 +18,7 @@ from pathlib import Path
 import nuav2.commands
 
 _GROUPS: dict[str, argparse._SubParsersAction] = {}
+_TOP: argparse._SubParsersAction | None = None
 EXIT_BAD_INPUT = 2
 # Exceptions that mean "the input is wrong" (their message says what and where); anything else is
 # reported the same way but flagged as an internal error.
@@ -48,15 +49,11 @@ def describe_error(e: BaseException) -> str:
         msg = f"{where}: {e.strerror or e}"
     elif isinstance(e, KeyError):
         msg = f"not found: {e.args[0]!r}" if e.args else "KeyError"
-    else:
+    elif isinstance(e, INPUT_ERRORS):
         msg = str(e) or type(e).__name__
-        if not isinstance(e, (UsageError, *INPUT_ERRORS[1:])):
-            msg = f"{type(e).__name__}: {msg}"
-    line = " ".join(msg.split())
-    if not isinstance(e, INPUT_ERRORS):
-        line = f"internal error: {line} (rerun as 'nuav2 -v ...' for the traceback)"
-    return line
-_TOP: argparse._SubParsersAction | None = None
+    else:
+        msg = f"internal error: {type(e).__name__}: {e} (rerun as 'nuav2 -v ...' for the traceback)"
+    return " ".join(msg.split())
 
 
 def group(name: str, help: str) -> argparse._SubParsersAction:

@@ -248,3 +248,14 @@ def test_atomic_writes_follow_the_umask(tmp_path: Path):
                 (d / "x").write_text("x")
         assert stat.S_IMODE((tmp_path / f"f{mask}").stat().st_mode) == file_mode
         assert stat.S_IMODE((tmp_path / f"d{mask}").stat().st_mode) == dir_mode
+
+
+def test_error_lines_name_the_file_and_flag_internal_errors():
+    from nuav2.cli import describe_error
+
+    assert describe_error(FileNotFoundError(2, "No such file or directory", "/x/y")) == \
+        "/x/y: No such file or directory"
+    assert describe_error(AssertionError("Database version not found: /d/v9")) == \
+        "Database version not found: /d/v9"
+    line = describe_error(RuntimeError("boom\n  at depth"))
+    assert line.startswith("internal error: RuntimeError: boom at depth") and "nuav2 -v" in line
