@@ -121,3 +121,17 @@ def test_global_frame_is_the_city_frame_shifted_to_the_ground_under_the_first_po
     assert np.abs(city_T_egoT - want).max() < 1e-3  # µs label vs ns pose: < 1 mm at these speeds
     assert all(abs(p["translation"][2]) < 0.5 for p in nusc.ego_pose)
 
+
+
+def test_without_a_ground_raster_the_first_output_ego_pose_is_the_zero(synth_log: Path):
+    """Fallback of the z offset: the first pose's height minus the source rig's origin height."""
+    import dataclasses
+
+    from converters.av2 import read_log
+    from nuav2.nuscenes_db.writer import ground_z_city
+
+    scene = read_log(synth_log)
+    with_raster = ground_z_city(scene)
+    without = ground_z_city(dataclasses.replace(scene, ground_height=None))
+    assert without == pytest.approx(scene.city_T_ego[0, 2, 3] - scene.rig.origin_height_m, abs=1e-3)
+    assert with_raster == pytest.approx(without, abs=0.02)  # the synthetic ego rides 0.32 m above flat ground
