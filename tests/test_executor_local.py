@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import json
+import logging
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -12,6 +14,7 @@ from pathlib import Path
 
 from test_executor_support import VERSION, convert, tables
 
+from nuav2.executors.progress import BatchProgress
 from nuav2.executors.task import FAULT_ENV
 
 pytest_plugins = ["test_executor_support"]  # the synth_split and reference_tables fixtures
@@ -84,20 +87,34 @@ def test_a_log_that_kills_every_worker_is_given_up_after_the_retries(
     assert len(report["failed"]) == 3 and all("worker process died 2 times" in f["error"]
                                               for f in report["failed"])
     assert all(len(p.read_text().split()) <= 2 for p in hook.glob("*.attempts"))
-    assert "error: no log converted" in capsys.readouterr().err
+    assert "nuav2 convert: no log converted" in capsys.readouterr().err
 
 
-def test_progress_is_one_line_per_few_seconds_when_stderr_is_not_a_terminal(
+def test_progress_is_log_lines_when_stderr_is_not_a_terminal_and_the_report_summarises_each_log(
         synth_split: Path, reference_tables: dict, tmp_path: Path):
     out = tmp_path / "out"
     proc = subprocess.run([sys.executable, "-m", "nuav2", "convert", "av2", str(synth_split), str(out),
                            "--workers", "2"], env={**os.environ, "PYTHONPATH": str(REPO)},
                           capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr
-    assert "\r" not in proc.stderr
-    assert "convert: 3/3 logs done, 0 failed, 0 running" in proc.stderr
+    assert "\r" not in proc.stderr  # no bar redraws in a log file
     report = json.loads((out / "convert_report.json").read_text())
     assert sorted(report["logs"]) == sorted(report["converted"])
     for summary in report["logs"].values():
         assert summary["mode"] == "native" and summary["images"] > 0 and summary["seconds"] > 0
+        assert summary["cpu_seconds"] > 0 and summary["peak_rss_mb"] > 0
     assert tables(out) == reference_tables
+
+
+def test_batch_progress_lines_say_done_failed_running_and_time_left(caplog):
+    progress = BatchProgress(3, line_every_s=0.0)
+    assert not progress.tty  # pytest captures stderr
+    with caplog.at_level(logging.INFO, logger="nuav2.progress"):
+        progress.update(running=2)
+        progress.update(finished=1, failed=1, running=2)
+        progress.update(finished=2, running=0)
+        progress.close()
+    lines = [r.getMessage() for r in caplog.records]
+    assert lines[0].startswith("convert: 0/3 log [failed=0, running=2, left=?]")
+    assert re.match(r"convert: 1/3 log \[failed=1, running=2, left=\d+ s\]", lines[1])
+    assert lines[-1].startswith("convert: 3/3 log [failed=1, running=0, left=0 s]")

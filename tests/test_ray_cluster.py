@@ -82,4 +82,4 @@ def test_an_address_with_no_cluster_is_a_one_line_error(synth_split: Path, tmp_p
     assert convert(synth_split, tmp_path / "out", "--executor", "ray", "--ray-address", address) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1
-    assert err[0].startswith(f"error: --ray-address: Ray cluster '{address}' does not answer")
+    assert err[0].startswith(f"nuav2 convert: --ray-address: Ray cluster '{address}' does not answer")

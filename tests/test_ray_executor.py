@@ -153,5 +153,5 @@ def test_without_ray_installed_the_executor_is_a_one_line_error(synth_split: Pat
     monkeypatch.setitem(sys.modules, "ray", None)  # what `import ray` sees where ray is not installed
     assert convert(synth_split, tmp_path / "out", "--executor", "ray") == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert err == ["error: --executor ray needs the ray package (pip install 'nuav2[ray]')"]
+    assert err == ["nuav2 convert: --executor ray needs the ray package (pip install 'nuav2[ray]')"]
     assert not (tmp_path / "out").exists()

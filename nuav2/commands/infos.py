@@ -45,9 +45,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from nuav2.cli import UsageError, require_database
+    from nuav2.devkit_compat import HOOK_DIR
     from nuav2.executors.ray_tasks import RayMissingError
     from nuav2.maptr.infos import export_infos
 
+    require_database(args.dataroot, args.version)
     try:
         written = export_infos(
             args.dataroot,
@@ -63,8 +66,10 @@ def run(args: argparse.Namespace) -> int:
             ray_address=args.ray_address,
             progress=not args.no_progress,
         )
-    except (RayMissingError, ConnectionError) as e:  # --executor ray without ray, or no cluster there
-        print(f"error: {e}", file=sys.stderr)
-        return 2
+    except RayMissingError as e:
+        raise UsageError(str(e)) from e
     print(json.dumps({split: str(path) for split, path in written.items()}, indent=1))
+    # MapTR's own tools run in an older stack where nuav2 is not installed; this lets them open the maps.
+    print(f"MapTR's tools (nuscenes-devkit 1.1.x) open the av2-* map locations with PYTHONPATH={HOOK_DIR}",
+          file=sys.stderr)
     return 0
