@@ -30,10 +30,14 @@ log = logging.getLogger(__name__)
 RAY_MISSING = "--executor ray needs the ray package (pip install 'nuav2[ray]')"
 MARKER_PREFIX = ".nuav2-visible-"
 LOCAL_OBJECT_STORE_BYTES = 256 * 2**20  # tasks return small dicts; the shards go to OUT, not the store
-# Per task when not given: render trains with 2 threads; memory from the peak RSS measured by
-# `nuav2 bench scale` with headroom for full-size AV2 logs (see docs/cluster.md).
+# Per task when not given: render trains with 2 threads. Memory: the peak RSS measured at 1/8 scale
+# (0.3 / 0.7 / 0.8 GB, `nuav2 bench scale` and docs/cluster.md) with room for full-size AV2 logs.
 DEFAULT_CPUS = {"native": 1.0, "warp": 1.0, "render": 2.0}
 DEFAULT_MEMORY_GB = {"native": 2.0, "warp": 4.0, "render": 8.0}
+
+
+class RayMissingError(ImportError):
+    """``--executor ray`` where the ray package is not installed."""
 
 
 def ray_available() -> bool:
@@ -42,10 +46,6 @@ def ray_available() -> bool:
     except RayMissingError:
         return False
     return True
-
-
-class RayMissingError(ImportError):
-    """``--executor ray`` where the ray package is not installed."""
 
 
 def import_ray():
