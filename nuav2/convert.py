@@ -91,8 +91,12 @@ class ConvertOptions:
     def _check_executor(self) -> None:
         if self.executor not in EXECUTORS:
             raise ConvertError(f"--executor must be one of {EXECUTORS}, got {self.executor!r}")
-        if self.executor != "ray" and self.ray_address:
-            raise ConvertError("--ray-address needs --executor ray")
+        if self.executor != "ray":
+            for flag, value in (("--ray-address", self.ray_address), ("--cpus-per-task", self.cpus_per_task),
+                                ("--memory-per-task", self.memory_per_task_gb),
+                                ("--gpus-per-task", self.gpus_per_task)):
+                if value is not None:
+                    raise ConvertError(f"{flag} applies to --executor ray only")
         for flag, value in (("--cpus-per-task", self.cpus_per_task), ("--gpus-per-task", self.gpus_per_task),
                             ("--memory-per-task", self.memory_per_task_gb),
                             ("--max-retries", self.max_retries)):

@@ -118,3 +118,11 @@ def test_batch_progress_lines_say_done_failed_running_and_time_left(caplog):
     assert lines[0].startswith("convert: 0/3 log [failed=0, running=2, left=?]")
     assert re.match(r"convert: 1/3 log \[failed=1, running=2, left=\d+ s\]", lines[1])
     assert lines[-1].startswith("convert: 3/3 log [failed=1, running=0, left=0 s]")
+
+
+def test_ray_only_flags_are_refused_with_the_local_executor(synth_split: Path, tmp_path: Path, capsys):
+    for flag, value in (("--ray-address", "auto"), ("--cpus-per-task", "2"), ("--memory-per-task", "4"),
+                        ("--gpus-per-task", "1")):
+        assert convert(synth_split, tmp_path / "out", flag, value) == 2
+        assert capsys.readouterr().err.strip() == f"nuav2 convert: {flag} applies to --executor ray only"
+    assert not (tmp_path / "out").exists()
