@@ -70,7 +70,9 @@ def test_a_killed_worker_is_retried_and_the_tables_stay_identical(
     hook.mkdir()
     monkeypatch.setenv(FAULT_ENV, f"kill:{hook}")
     out = tmp_path / "out"
-    assert convert(synth_split, out, "--workers", "2") == 0
+    # A death breaks the whole pool, so logs in flight beside the killed one are redone too, and each
+    # log's own kill can cost a round: allow more rounds than logs (the bound is tested below).
+    assert convert(synth_split, out, "--workers", "2", "--max-retries", "5") == 0
     attempts = {p.name.split(".")[0]: len(p.read_text().split()) for p in hook.glob("*.attempts")}
     assert len(attempts) == 3 and min(attempts.values()) >= 2  # each log was killed once, then redone
     assert tables(out) == reference_tables
