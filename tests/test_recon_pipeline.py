@@ -273,13 +273,21 @@ def test_training_stops_when_heldout_psnr_stops_improving(tiny_scene):
     assert len(splat.info["validation_views"]) == 8  # spread over the held-out images
 
 
-def test_training_reports_progress_as_log_lines_when_not_a_terminal(tiny_scene, caplog):
+def test_training_reports_progress_as_log_lines_when_not_a_terminal(tiny_scene, caplog, monkeypatch):
+    """Off a terminal the trainer's progress is log lines with step, PSNR, held-out PSNR and Gaussians (here
+    one per update instead of one per 10 s, so that a short run shows them)."""
     import logging
 
+    import nuav2.splat.train as train_mod
+    from nuav2.progress import LineProgress
+
+    every_update = lambda it=None, **kw: LineProgress(it, interval_s=0.0, **kw)  # noqa: E731
+    monkeypatch.setattr(train_mod, "progress_bar", every_update)
     cfg = tiny_config(iterations=20)
     cfg = replace(cfg, train=replace(cfg.train, eval_every=10))
-    with caplog.at_level(logging.INFO, logger="nuav2.recon"):
+    with caplog.at_level(logging.INFO, logger="nuav2.progress"):
         reconstruct(tiny_scene, cfg, progress=True)
     lines = [r.getMessage() for r in caplog.records if r.getMessage().startswith("train ")]
-    assert lines and "20/20 it" in lines[-1] and "held-out psnr" in lines[-1] and "gaussians" in lines[-1]
+    assert len(lines) >= 20 and "20/20 it" in lines[-1]
+    assert "held-out psnr=" in lines[-1] and "gaussians=" in lines[-1] and "psnr=" in lines[0]
     assert all("\r" not in line for line in lines)

@@ -10,7 +10,7 @@ import cv2
 import numpy as np
 
 from nuav2.geometry import F64, T_inverse
-from nuav2.splat.progress import Progress
+from nuav2.progress import progress_bar
 from nuav2.splat.scene_model import TrackPoses
 from nuav2.splat.sky_init import sky_mask
 from nuav2.splat.views import Projection, SourceView, bilinear, project
@@ -57,9 +57,7 @@ def colour_seeds(background: F64, objects: dict[str, F64], tracks: dict[str, Tra
     seen = np.zeros(n, np.int32)
     sky_masks: dict[int, np.ndarray] = {}
     min_sin = np.sin(np.radians(cfg.sky_min_elevation_deg))
-    bar = Progress(len(views), "colour seeds", enabled=progress, unit="img")
-    for view in views:
-        bar.update()
+    for view in progress_bar(views, desc="colour seeds", unit="img", disable=not progress, leave=False):
         parts = [background]
         for tid in objects:
             tr = tracks[tid]
@@ -83,6 +81,5 @@ def colour_seeds(background: F64, objects: dict[str, F64], tracks: dict[str, Tra
             rgb[take] = bilinear(view.image(), proj.u[vis][better], proj.v[vis][better])
             best_z[take] = proj.z[vis][better]
         sky_masks[view.index] = sky_mask(view, scene_T_city, proj, min_sin, cfg.sky_dilate_px)
-    bar.close()
     splits = [SeedColours(rgb[a:b], seen[a:b], sky_masks) for a, b in zip(offsets[:-1], offsets[1:])]
     return splits[0], dict(zip(owners[1:], splits[1:]))

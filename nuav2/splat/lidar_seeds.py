@@ -9,8 +9,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from nuav2.geometry import F64, T_inverse
+from nuav2.progress import progress_bar
 from nuav2.scene import SceneLog
-from nuav2.splat.progress import Progress
 from nuav2.splat.scene_model import TrackPoses
 
 if TYPE_CHECKING:
@@ -46,9 +46,8 @@ def aggregate_lidar(scene: SceneLog, scene_T_city: F64, moving: dict[str, TrackP
     sweeps = scene.lidar_sweeps[:: max(1, cfg.sweep_stride)]
     lo, hi = np.asarray(cfg.ego_box_min), np.asarray(cfg.ego_box_max)
     n_points = 0
-    bar = Progress(len(sweeps), f"lidar {scene.log_id[:8]}", enabled=progress, unit="sweep")
-    for ref in sweeps:
-        bar.update()
+    for ref in progress_bar(sweeps, desc=f"lidar {scene.log_id[:8]}", unit="sweep", disable=not progress,
+                            leave=False):
         pts = scene.sweep(ref).xyz_ego
         pts = pts[np.all(np.isfinite(pts), axis=1)]
         pts = pts[~np.all((pts >= lo) & (pts <= hi), axis=1)]
@@ -68,7 +67,6 @@ def aggregate_lidar(scene: SceneLog, scene_T_city: F64, moving: dict[str, TrackP
                 in_any |= inside
         rest = pts[~in_any]
         bg_parts.append(rest @ scene_T_ego[:3, :3].T + scene_T_ego[:3, 3])
-    bar.close()
     bg = np.concatenate(bg_parts) if bg_parts else np.zeros((0, 3))
     objs = {tid: (np.concatenate(p) if p else np.zeros((0, 3))) for tid, p in obj_parts.items()}
     return LidarAggregate(bg, objs, len(sweeps), n_points)

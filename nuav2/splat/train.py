@@ -23,10 +23,10 @@ import torch
 
 from nuav2.atomic import atomic_write_bytes
 from nuav2.geometry import F64, T_inverse
+from nuav2.progress import progress_bar
 from nuav2.scene import SceneLog
 from nuav2.splat.densify import DensifyConfig, DensifyStrategy
 from nuav2.splat.losses import depth_loss, photometric_loss, psnr, sky_loss
-from nuav2.splat.progress import Progress
 from nuav2.splat.scene_model import GaussianSet, SplatScene, TrackPoses
 from nuav2.splat.views import SourceView, project
 
@@ -363,13 +363,16 @@ class Trainer:
             stop_at: int | None = None) -> TrainReport:
         """Train to ``cfg.iterations``, or until validation PSNR stops improving (``patience``), or
         ``stop_at`` (as if killed there after a checkpoint). ``progress``: a bar on a terminal, else a
-        log line every few seconds (:class:`nuav2.splat.progress.Progress`)."""
+        log line every few seconds (:func:`nuav2.progress.progress_bar`), with the current PSNR, held-out
+        PSNR and Gaussian count."""
         cfg = self.cfg
         end = cfg.iterations if stop_at is None else min(cfg.iterations, int(stop_at))
         torch.set_num_threads(cfg.threads)
         t0 = time.perf_counter()
         ema_loss, ema_psnr, reason = None, None, "iterations"
-        with Progress(cfg.iterations, f"train {self.name}", enabled=progress, initial=self.step) as bar:
+        bar = progress_bar(total=cfg.iterations, initial=self.step, desc=f"train {self.name}", unit="it",
+                           disable=not progress, leave=False)
+        try:
             while self.step < end and not self.plateau:
                 loss, p = self.train_step()
                 self.losses.append(loss)
@@ -377,16 +380,20 @@ class Trainer:
                 if math.isfinite(p):
                     ema_psnr = p if ema_psnr is None else 0.9 * ema_psnr + 0.1 * p
                 self._check_plateau()
-                status = {"psnr": float(ema_psnr or 0.0), "gaussians": self.splat.num_gaussians()}
-                if self.validation:
-                    status["held-out psnr"] = float(self.validation[-1][1])
-                bar.update(1, **status)
+                if self.step % 10 == 0 or self.step in (1, end):
+                    status = {"psnr": f"{ema_psnr or 0.0:.2f}", "gaussians": self.splat.num_gaussians()}
+                    if self.validation:
+                        status["held-out psnr"] = f"{self.validation[-1][1]:.2f}"
+                    bar.set_postfix(status, refresh=False)
+                bar.update()
                 every = cfg.checkpoint_every
                 if checkpoint_dir is not None and every and self.step % every == 0:
                     self.save(Path(checkpoint_dir) / CHECKPOINT_FILE)
                 if cfg.time_budget_s is not None and time.perf_counter() - t0 > cfg.time_budget_s:
                     reason = "time budget"
                     break
+        finally:
+            bar.close()
         if self.plateau:
             reason = "plateau"
         if checkpoint_dir is not None:
