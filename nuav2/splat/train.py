@@ -72,6 +72,7 @@ class TrainConfig:
     # such plateau training ends (not before ``min_iterations``).
     eval_every: int = 50
     eval_views: int = 8
+    eval_level: float = 0.5  # resolution of the measurement (x the training images): a quarter of the pixels
     patience: int = 3  # 0: never stop early (validation is still measured and reported)
     min_delta_db: float = 0.1
     min_iterations: int = 0
@@ -329,13 +330,13 @@ class Trainer:
         return value, psnr(out.rgb, img, valid)
 
     def validate(self) -> float | None:
-        """Mean PSNR of the validation views at full training resolution (None without any)."""
+        """Mean PSNR of the validation views at ``eval_level`` x the training resolution (None: no views)."""
         if not self.val_data:
             return None
         vals = []
         with torch.no_grad():
             for d in self.val_data:
-                cam, img, valid, _, _ = d.at(1.0)
+                cam, img, valid, _, _ = d.at(self.cfg.eval_level)
                 v = d.view
                 out = self.splat.render(cam, v.city_T_cam, v.timestamp_ns, sh_degree=self._active_sh())
                 vals.append(psnr(out.rgb, img, valid))
