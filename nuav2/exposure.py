@@ -8,7 +8,7 @@ several images (across cameras and over time) must have one colour. Per observat
 p in image v, channel k, at normalised radius rho (pixel distance from the principal point
 over the half diagonal):
 
-    log c[v,p,k] = log g[v,k] + a1 rho^2 + a2 rho^4 + log r[p,k]
+    log c[v,p,k] = log g[v,k] + a1[cam(v)] rho^2 + a2[cam(v)] rho^4 + log r[p,k]
 
 solved by least squares (point colours eliminated exactly) with a ridge prior pulling log g to 0,
 re-weighted a few times so that observations whose
@@ -35,7 +35,8 @@ class ExposureConfig:
 
     iterations: int = 4
     prior_weight: float = 2.0  # ridge weight (in observations) pulling each log gain to 0
-    vignetting: bool = True  # also solve one radial fall-off for all cameras (AV2's ring: one model)
+    vignetting: bool = True  # also solve a radial fall-off shared by the cameras (AV2's ring: one model) ...
+    camera_vignetting_prior: float | None = 0.1  # ... + each camera's deviation (ridge x its observations)
     outlier_sigma: float = 2.5
     min_value: float = 0.04  # darker or ...
     max_value: float = 0.96  # ... brighter channels are not observations (noise floor, clipping)
@@ -125,7 +126,7 @@ class ExposureModel:
     """Solved corrections: ``log_gain`` per image and channel, the cameras' radial ``vignetting``."""
 
     log_gain: np.ndarray  # (V, 3)
-    vignetting: np.ndarray  # (2,): a1, a2 of the shared radial fall-off
+    vignetting: np.ndarray  # (C, 2): a1, a2 of each camera's radial fall-off
     camera_of_image: np.ndarray  # (V,) int
     observations: int = 0
     inliers: int = 0
@@ -133,14 +134,14 @@ class ExposureModel:
     @staticmethod
     def identity(camera_of_image: np.ndarray) -> ExposureModel:
         cams = np.asarray(camera_of_image, np.int64)
-        return ExposureModel(np.zeros((len(cams), 3)), np.zeros(2), cams)
+        return ExposureModel(np.zeros((len(cams), 3)), np.zeros((int(cams.max(initial=-1)) + 1, 2)), cams)
 
     def gain(self, image_index: int) -> np.ndarray:
         return np.exp(self.log_gain[int(image_index)])
 
     def factor(self, image_index: int, K: F64, width: int, height: int) -> np.ndarray:
         """(H, W, 3) float32: the observed image is the reference-exposure image times this."""
-        a1, a2 = self.vignetting
+        a1, a2 = self.vignetting[int(self.camera_of_image[int(image_index)])]
         uu, vv = np.meshgrid(np.arange(width, dtype=np.float64), np.arange(height, dtype=np.float64))
         r2 = radius2(uu, vv, K, width, height)[..., None]
         log_f = a1 * r2 + a2 * r2 * r2 + self.log_gain[int(image_index)]
@@ -185,23 +186,29 @@ def solve_exposure(obs: Observations, camera_of_image: np.ndarray,
     if len(img) == 0:
         return model
     n_obs, n_pt = len(img), int(pt.max()) + 1
-    n_vig = 2 if cfg.vignetting else 0
-    n = n_img + n_vig
+    n_cam = int(cams.max()) + 1
+    per_cam = cfg.vignetting and cfg.camera_vignetting_prior is not None
+    n = n_img + (2 if cfg.vignetting else 0) + (2 * n_cam if per_cam else 0)
     rows = np.arange(n_obs)
     cols = [img]
     vals = [np.ones(n_obs)]
-    if cfg.vignetting:
+    if cfg.vignetting:  # shared a1, a2, then each camera's deviation from them
         cols += [np.full(n_obs, n_img), np.full(n_obs, n_img + 1)]
+        vals += [rho2, rho2 * rho2]
+    if per_cam:
+        cols += [n_img + 2 + 2 * cams[img], n_img + 3 + 2 * cams[img]]
         vals += [rho2, rho2 * rho2]
     A = sparse.csr_matrix((np.concatenate(vals), (np.tile(rows, len(cols)), np.concatenate(cols))),
                           shape=(n_obs, n))
     B = sparse.csr_matrix((np.ones(n_obs), (rows, pt)), shape=(n_obs, n_pt))
-    prior = np.zeros(n)
+    prior = np.full(n, 1e-3)
     prior[:n_img] = cfg.prior_weight
-    prior[n_img:] = 1e-3
+    if per_cam:
+        per = np.bincount(cams[img], minlength=n_cam).astype(np.float64) * cfg.camera_vignetting_prior
+        prior[n_img + 2:] = np.repeat(np.maximum(per, 1e-3), 2)
     logc = np.log(rgb)
     lg = np.zeros((n_img, 3))
-    vig = np.zeros((3, 2))  # per channel, a1 and a2
+    vig = np.zeros((n_cam, 2))
     w = np.ones(n_obs)
     for _ in range(max(1, cfg.iterations)):
         W = sparse.diags(w)
@@ -218,12 +225,13 @@ def solve_exposure(obs: Observations, camera_of_image: np.ndarray,
         r_pt = Dinv @ (B.T @ (w[:, None] * (logc - fit)))
         resid = logc - fit - B @ r_pt
         lg = x[:n_img]
-        if cfg.vignetting:
-            vig = x[n_img:].T
+        if cfg.vignetting:  # one fall-off for all channels (the per-channel solves differ by noise only)
+            vig = np.repeat(x[n_img:n_img + 2].mean(1)[None], n_cam, axis=0)
+            if per_cam:
+                vig += x[n_img + 2:].mean(1).reshape(n_cam, 2)
         r = np.abs(resid).max(1)
         sigma = 1.4826 * np.median(r[w > 0]) + 1e-6
         w = (r <= cfg.outlier_sigma * sigma).astype(np.float64)
     seen = np.bincount(img, minlength=n_img) > 0
     lg[seen] -= lg[seen].mean(0)  # the reference exposure: the mean over the images that were observed
-    # one fall-off for all channels (the per-channel solves differ by noise only)
-    return ExposureModel(lg, vig.mean(0), cams, int(n_obs), int(w.sum()))
+    return ExposureModel(lg, vig, cams, int(n_obs), int(w.sum()))

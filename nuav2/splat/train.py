@@ -70,7 +70,7 @@ class TrainConfig:
     # ``eval_views`` held-out images is measured. After ``patience`` measurements in a row without a
     # gain of ``min_delta_db`` over the best so far, densification ends (if still on), and at the next
     # such plateau training ends (not before ``min_iterations``).
-    eval_every: int = 50
+    eval_every: int = 100
     eval_views: int = 8
     eval_level: float = 0.5  # resolution of the measurement (x the training images): a quarter of the pixels
     patience: int = 3  # 0: never stop early (validation is still measured and reported)
@@ -138,20 +138,27 @@ def lidar_depth_samples(scene: SceneLog, view: SourceView, scene_T_city: F64, ma
     return uvz[:max_points]
 
 
-def pose_prior(track: TrackPoses, lambda_size: float, lambda_smooth: float) -> torch.Tensor:
+def pose_prior(track: TrackPoses, lambda_size: float, lambda_smooth: float,
+               base: tuple[torch.Tensor, torch.Tensor] | None = None) -> torch.Tensor:
     """Prior of a track's learned box-pose corrections: small (``lambda_size`` x mean squared correction)
     and a smooth corrected path (``lambda_smooth`` x mean squared second difference of the corrected
-    centres and headings between annotated frames): labels jitter from frame to frame, actors do not."""
+    centres and headings between annotated frames): labels jitter from frame to frame, actors do not.
+    ``base``: the track's (poses, unwrapped headings) as tensors, when the caller keeps them."""
     d = track.pose_delta
-    T = torch.as_tensor(track.scene_T_box, dtype=torch.float32)
+    T, yaw0 = base if base is not None else track_tensors(track)
     centre = T[:, :3, 3] + torch.einsum("nij,nj->ni", T[:, :3, :3], d[:, :3])
-    yaw = torch.as_tensor(np.unwrap(np.arctan2(track.scene_T_box[:, 1, 0], track.scene_T_box[:, 0, 0])),
-                          dtype=torch.float32) + d[:, 3]
     total = lambda_size * d.pow(2).sum(-1).mean()
     if len(d) >= 3:
-        path = torch.cat([centre, yaw[:, None]], 1)
+        path = torch.cat([centre, (yaw0 + d[:, 3])[:, None]], 1)
         total = total + lambda_smooth * (path[2:] - 2 * path[1:-1] + path[:-2]).pow(2).sum(-1).mean()
     return total
+
+
+def track_tensors(track: TrackPoses) -> tuple[torch.Tensor, torch.Tensor]:
+    """(scene_T_box (T, 4, 4), unwrapped heading (T,)) of a track as float32 tensors."""
+    yaw = np.unwrap(np.arctan2(track.scene_T_box[:, 1, 0], track.scene_T_box[:, 0, 0]))
+    T = torch.as_tensor(track.scene_T_box, dtype=torch.float32)
+    return T, torch.as_tensor(yaw, dtype=torch.float32)
 
 
 def spread(items: list, n: int) -> list:
@@ -245,6 +252,7 @@ class Trainer:
         torch.manual_seed(cfg.seed)
         self.splat, self.cfg = splat, cfg
         self.name = scene.log_id[:8]
+        self._track_base: dict[str, tuple[torch.Tensor, torch.Tensor]] = {}
         if cfg.lr_pose > 0:
             for o in splat.objects:
                 if o.track.pose_delta is None:
@@ -279,11 +287,17 @@ class Trainer:
     def _active_sh(self) -> int:
         return min(self.splat.sh_degree, self.step // max(1, self.cfg.sh_degree_every))
 
-    def _pose_prior(self) -> torch.Tensor | float:
+    def _pose_prior(self, rendered: dict[str, slice]) -> torch.Tensor | float:
+        """The pose prior of the objects this step rendered (the ones whose corrections it updates)."""
         total: torch.Tensor | float = 0.0
         for o in self.splat.objects:
-            if o.track.pose_delta is not None and o.track.pose_delta.requires_grad:
-                total = total + pose_prior(o.track, self.cfg.lambda_pose, self.cfg.lambda_pose_smooth)
+            d = o.track.pose_delta
+            if d is None or not d.requires_grad or o.track.key not in rendered:
+                continue
+            if o.track.key not in self._track_base:
+                self._track_base[o.track.key] = track_tensors(o.track)
+            total = total + pose_prior(o.track, self.cfg.lambda_pose, self.cfg.lambda_pose_smooth,
+                                       self._track_base[o.track.key])
         return total
 
     # ---- one iteration ----
@@ -303,7 +317,7 @@ class Trainer:
             loss = loss + cfg.lambda_depth * depth_loss(out.depth, out.alpha, uvz, cfg.depth_trim)
         if cfg.lambda_sky > 0:
             loss = loss + cfg.lambda_sky * sky_loss(out.alpha, sky)
-        loss = loss + self._pose_prior()
+        loss = loss + self._pose_prior(out.slices)
         value = float(loss.detach())
         if math.isfinite(value):
             loss.backward()
