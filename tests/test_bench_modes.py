@@ -83,3 +83,16 @@ def test_unknown_preset_and_bad_seconds_are_one_line_errors(capsys):
     assert "--preset: unknown preset(s) ['nope']" in capsys.readouterr().err
     assert main(["bench", "modes", "--seconds", "2,x", "--quiet"]) == 2
     assert "--seconds: expected comma-separated numbers" in capsys.readouterr().err
+
+
+def test_markdown_tables_say_how_they_were_measured(run):
+    from nuav2.bench.markdown import modes_markdown
+
+    result = {"command": "nuav2 bench modes (test)", "machine_at_start": {"load_1_5_15": [1.0, 1.0, 1.0],
+                                                                         "cpu_count": 2},
+              "load_1_5_15_at_end": [1.5, 1.0, 1.0], "runs": [run]}
+    text = modes_markdown(result)
+    assert "`nuav2 bench modes (test)`" in text and "interleaved frame by frame" in text and "load" in text
+    assert "| rotation mosaic |" in text and "| mean colour |" in text and "| easy, 0.3 s | 3 |" in text
+    warp_row = next(line for line in text.splitlines() if line.startswith("| warp |"))
+    assert f"{run['modes']['warp']['quality']['psnr_db']['ground']:.2f}" in warp_row

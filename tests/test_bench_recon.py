@@ -52,3 +52,9 @@ def test_bench_recon_over_two_seeds_scores_regions_and_marks_the_tuned_seed():
     assert entry["untuned"]["psnr_whole"]["mean"] == pytest.approx(rows[1]["target"]["psnr_db"])
     assert result["command"] == "nuav2 bench recon (test)"
     assert len(result["machine_at_start"]["load_1_5_15"]) == 3
+    from nuav2.bench.markdown import recon_markdown
+
+    text = recon_markdown(result)
+    assert "`nuav2 bench recon (test)`" in text
+    assert "seed 0 (the seed the reconstruction presets were tuned on)" in text
+    assert "| easy | init-only | 1 |" in text

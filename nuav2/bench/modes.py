@@ -190,7 +190,7 @@ def bench_one_log(preset: str, seconds: float, *, seed: int = 0, image_scale: fl
     paint_floor = modes["warp"]["quality"].get("paint_median_px_truth")
     return {"preset": preset, "seconds": float(seconds), "seed": seed, "log_id": scene.log_id,
             "synth_config": config.to_dict(), "synth_s": round(synth_sw.wall_s[0], 2),
-            "source_image_size": [scene.rig.cameras[0].width, scene.rig.cameras[0].height],
+            "source_image_size": max([c.width, c.height] for c in scene.rig.cameras),  # the landscape size
             "target": {"rig": rig_name, "scale": scale, "cameras": rig.camera_channels,
                        "image_size": [rig.cameras[0].width, rig.cameras[0].height]},
             "frames": n, "images_per_frame": len(rig.cameras),

@@ -31,6 +31,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="reconstruction settings for render mode")
     p.add_argument("--work-dir", type=Path, default=None, help="keep the synthetic logs here (default: temp)")
     p.add_argument("--out", type=Path, default=None, help="also write the JSON here")
+    p.add_argument("--markdown", type=Path, default=None,
+                   help="also write the docs' markdown tables (with how they were measured) here")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.add_argument("--json", action="store_true", help="compact JSON (default: indented)")
     p.set_defaults(func=run)
@@ -54,5 +56,10 @@ def run(args: argparse.Namespace) -> int:
                          recon_preset=args.recon_preset, work_dir=args.work_dir, progress=not args.quiet)
     if args.out is not None:
         atomic_write_json(args.out, result, indent=1)
+    if args.markdown is not None:
+        from nuav2.atomic import atomic_write_bytes
+        from nuav2.bench.markdown import modes_markdown
+
+        atomic_write_bytes(args.markdown, modes_markdown(result).encode())
     print(json.dumps(result, indent=None if args.json else 1))
     return 0

@@ -28,6 +28,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--holdout-every", type=int, default=5, help="hold out every k-th source image per camera")
     p.add_argument("--times", type=int, default=6, help="sample times scored in the target rig")
     p.add_argument("--out", type=Path, default=None, help="also write the JSON here")
+    p.add_argument("--markdown", type=Path, default=None,
+                   help="also write the docs' markdown tables (with how they were measured) here")
     p.add_argument("--plot", type=Path, default=None, help="also write a PNG plot (PSNR against time) here")
     p.add_argument("--progress", action="store_true", help="show progress bars on stderr")
     p.add_argument("--json", action="store_true", help="compact JSON on one line (the default is indented)")
@@ -59,6 +61,11 @@ def run(args: argparse.Namespace) -> int:
                          progress=args.progress)
     if args.out is not None:
         atomic_write_json(args.out, result, indent=1)
+    if args.markdown is not None:
+        from nuav2.atomic import atomic_write_bytes
+        from nuav2.bench.markdown import recon_markdown
+
+        atomic_write_bytes(args.markdown, recon_markdown(result).encode())
     if args.plot is not None:
         plot_bench(result, args.plot)
     print(json.dumps(result, indent=None if args.json else 1))
