@@ -67,9 +67,16 @@ def rotation_frame_fn(scene: SceneLog, mosaic: bool) -> FrameFn:
         return RotationSource(read_rgb(frame.path, cam), cam, city_T_cam)
 
     def frame_fn(views: list[tuple[CameraSpec, F64]], t: int) -> list[np.ndarray]:
+        loaded: dict[str, RotationSource] = {}  # each source image read once per frame
+
+        def get(c: CameraSpec) -> RotationSource:
+            if c.channel not in loaded:
+                loaded[c.channel] = source(c, t)
+            return loaded[c.channel]
+
         out = []
         for cam, T in views:
-            srcs = [source(c, t) for c in cams] if mosaic else [source(closest_source_camera(cam, ring), t)]
+            srcs = [get(c) for c in cams] if mosaic else [get(closest_source_camera(cam, ring))]
             img, covered = rotate_into_target(srcs, cam, T)
             filled = fill_uncovered(img.astype(np.float32) / 255.0, covered)
             out.append(np.clip(np.rint(filled * 255.0), 0, 255).astype(np.uint8))
