@@ -28,12 +28,12 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
 
 from nuav2.bench.synth_presets import synth_config
 from nuav2.bench.timing import Stopwatch, machine
 from nuav2.evaluate.against_world import RegionScores, truth_view
 from nuav2.geometry import F64
+from nuav2.progress import progress_bar
 from nuav2.rig import CameraSpec, Rig, load_rig
 from nuav2.scene import SceneLog
 from nuav2.splat.render_target import target_city_T_cams
@@ -179,7 +179,8 @@ def bench_one_log(preset: str, seconds: float, *, seed: int = 0, image_scale: fl
                 fn(first, times[0])
         timers = {m: Stopwatch() for m in producers}
         scores = {m: RegionScores.for_map(scene.vector_map) for m in (*producers, FLOOR)}
-        for i, t in enumerate(tqdm(times, desc=f"{preset} {seconds:g}s frames", disable=not progress)):
+        bar = progress_bar(times, desc=f"{preset} {seconds:g}s frames", disable=not progress)
+        for i, t in enumerate(bar):
             views = target_poses(scene, rig, t)
             order = list(producers)[i % len(producers):] + list(producers)[:i % len(producers)]
             images: dict[str, list[np.ndarray]] = {}
