@@ -60,7 +60,7 @@ def run_demo(options: DemoOptions) -> dict:
     """Run every stage per realism preset (into OUT/<preset>/) and return a JSON-able summary with the
     presets side by side (also written to OUT/demo_summary.json)."""
     from nuav2.atomic import atomic_write_json
-    from nuav2.bench.report import command_line
+    from nuav2.bench.cli_args import command_line
     from nuav2.bench.timing import machine
 
     start = machine()
@@ -77,17 +77,16 @@ def run_demo(options: DemoOptions) -> dict:
 def _run_preset(options: DemoOptions, preset: str, out: Path) -> dict:
     """synth -> convert -> validate + devkit -> score per region -> side-by-side PNG, for one preset."""
     from converters.av2 import read_log
-    from nuav2.bench.synth_presets import synth_config
     from nuav2.bench.timing import Stopwatch
     from nuav2.convert import ConvertOptions, convert_av2
     from nuav2.evaluate.against_world import key_camera_images, log_offsets, score_against_world
     from nuav2.maptr.dataset import load_image_rgb
     from nuav2.nuscenes_db.validate import validate_database
-    from nuav2.synth import generate_log, load_world, render_view
+    from nuav2.synth import SynthConfig, generate_log, load_world, render_view
 
     clocks = {k: Stopwatch() for k in ("synth", "convert", "validate", "score")}
     with clocks["synth"]:
-        config = synth_config(preset, seconds=options.seconds)
+        config = SynthConfig.for_preset(preset, seconds=options.seconds)
         log_dir = generate_log(out / "av2", seed=options.seed, config=config, progress=options.progress)
 
     dataroot = out / "nuscenes"

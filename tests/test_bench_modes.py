@@ -80,9 +80,15 @@ def test_mean_colour_floor_ignores_the_ego_body():
 
 def test_unknown_preset_and_bad_seconds_are_one_line_errors(capsys):
     assert main(["bench", "modes", "--preset", "nope", "--quiet"]) == 2
-    assert "--preset: unknown preset(s) ['nope']" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "--preset: unknown preset(s) ['nope']; known: easy, medium, hard" in err
+    assert len(err.splitlines()) == 1
     assert main(["bench", "modes", "--seconds", "2,x", "--quiet"]) == 2
     assert "--seconds: expected comma-separated numbers" in capsys.readouterr().err
+    assert main(["bench", "recon", "--budgets", "fast,huge"]) == 2
+    assert "--budgets: unknown budget(s) ['huge']" in capsys.readouterr().err
+    assert main(["demo", "--preset", "easy,extreme"]) == 2
+    assert "--preset: unknown preset(s) ['extreme']" in capsys.readouterr().err
 
 
 def test_markdown_tables_say_how_they_were_measured(run):

@@ -29,7 +29,6 @@ from pathlib import Path
 
 import numpy as np
 
-from nuav2.bench.synth_presets import synth_config
 from nuav2.bench.timing import Stopwatch, machine
 from nuav2.evaluate.against_world import RegionScores, truth_view
 from nuav2.geometry import F64
@@ -147,12 +146,12 @@ def bench_one_log(preset: str, seconds: float, *, seed: int = 0, image_scale: fl
     ``recon_config`` (a ReconConfig) replaces ``recon_preset``; ``synth_overrides`` are further
     SynthConfig fields (tests use them for tiny logs)."""
     from converters.av2 import read_log
-    from nuav2.synth import generate_log, load_world
+    from nuav2.synth import SynthConfig, generate_log, load_world
 
     overrides = {**(synth_overrides or {}), "seconds": float(seconds)}
     if image_scale:
         overrides["image_scale"] = image_scale
-    config = synth_config(preset, **overrides)
+    config = SynthConfig.for_preset(preset, **overrides)
     with tempfile.TemporaryDirectory(prefix="nuav2_bench_modes_") as tmp:
         root = Path(work_dir) / f"{preset}_{seconds:g}s" if work_dir is not None else Path(tmp)
         synth_sw = Stopwatch()

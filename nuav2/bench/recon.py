@@ -186,8 +186,7 @@ def bench_recon(log_dir: str | Path | None = None, *, seed: int = 0, seeds: tupl
     With ``log_dir`` (a synthetic log) only that log is measured; otherwise one log is generated per
     preset and seed (``seeds``, default ``(seed,)``), ``synth_overrides`` changing its SynthConfig.
     """
-    from nuav2.bench.synth_presets import synth_config
-    from nuav2.synth import generate_log
+    from nuav2.synth import SynthConfig, generate_log
 
     budgets = budgets or default_budgets()
     start = machine()
@@ -201,7 +200,7 @@ def bench_recon(log_dir: str | Path | None = None, *, seed: int = 0, seeds: tupl
             for sd in seeds or (seed,):
                 with tempfile.TemporaryDirectory(prefix="nuav2-bench-recon-") as tmp:
                     t0 = time.perf_counter()
-                    config = synth_config(preset, **(synth_overrides or {}))
+                    config = SynthConfig.for_preset(preset, **(synth_overrides or {}))
                     log = generate_log(Path(tmp), seed=sd, config=config)
                     gen_s[f"{preset}/{sd}"] = round(time.perf_counter() - t0, 2)
                     for r in _one_log(log, budgets, holdout_every, n_times, progress):

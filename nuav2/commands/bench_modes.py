@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from pathlib import Path
 
 from nuav2.cli import group
@@ -40,16 +39,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from nuav2.atomic import atomic_write_json
+    from nuav2.bench.cli_args import command_line, parse_floats, parse_presets
     from nuav2.bench.modes import bench_modes
-    from nuav2.bench.report import command_line, parse_floats
-    from nuav2.bench.synth_presets import parse_presets
 
-    try:
-        presets = parse_presets(args.preset)
-        seconds = parse_floats(args.seconds, "--seconds")
-    except ValueError as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
+    presets = parse_presets(args.preset)  # a bad value: one line from nuav2.cli
+    seconds = parse_floats(args.seconds, "--seconds")
     result = bench_modes(presets, seconds, command=command_line(), seed=args.seed,
                          image_scale=args.image_scale, rig_name=args.rig, scale=args.scale,
                          frame_step=args.frame_step, with_render=not args.no_render,

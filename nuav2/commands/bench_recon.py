@@ -4,10 +4,9 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from pathlib import Path
 
-from nuav2.cli import group
+from nuav2.cli import UsageError, group
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -38,24 +37,19 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from nuav2.atomic import atomic_write_json
+    from nuav2.bench.cli_args import command_line, parse_ints, parse_presets
     from nuav2.bench.recon import bench_recon, default_budgets, plot_bench
-    from nuav2.bench.report import command_line, parse_ints
-    from nuav2.bench.synth_presets import parse_presets
 
     budgets = default_budgets()
-    try:
-        presets = parse_presets(args.preset)
-        seeds = parse_ints(args.seeds, "--seeds")
-        if args.budgets:
-            names = [b.strip() for b in args.budgets.split(",") if b.strip()]
-            known = {b["name"] for b in budgets}
-            unknown = sorted(set(names) - known)
-            if unknown:
-                raise ValueError(f"--budgets: unknown budget(s) {unknown}; known: {sorted(known)}")
-            budgets = [b for b in budgets if b["name"] in names]
-    except ValueError as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
+    presets = parse_presets(args.preset)  # a bad value: one line from nuav2.cli
+    seeds = parse_ints(args.seeds, "--seeds")
+    if args.budgets:
+        names = [b.strip() for b in args.budgets.split(",") if b.strip()]
+        known = {b["name"] for b in budgets}
+        unknown = sorted(set(names) - known)
+        if unknown:
+            raise UsageError(f"--budgets: unknown budget(s) {unknown}; known: {sorted(known)}")
+        budgets = [b for b in budgets if b["name"] in names]
     result = bench_recon(args.log_dir, seeds=seeds, presets=tuple(presets), budgets=budgets,
                          holdout_every=args.holdout_every, n_times=args.times, command=command_line(),
                          progress=args.progress)

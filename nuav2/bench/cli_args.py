@@ -1,4 +1,5 @@
-"""What every benchmark report carries so that a reader can rerun it: the exact command line."""
+"""What the bench commands and the demo share on the command line: the exact command (every report
+carries it, so a reader can rerun it) and list-valued flags (``--preset easy,hard``, ``--seconds 2,15``)."""
 
 from __future__ import annotations
 
@@ -32,3 +33,15 @@ def parse_ints(text: str, flag: str) -> tuple[int, ...]:
     if not values:
         raise ValueError(f"{flag}: expected comma-separated integers, got {text!r}")
     return values
+
+
+def parse_presets(text: str, flag: str = "--preset") -> list[str]:
+    """``"easy,hard"`` or ``"all"`` -> synthetic realism presets in the given order; unknown names are an
+    error naming ``flag``."""
+    from nuav2.synth import PRESETS
+
+    names = list(PRESETS) if text.strip() == "all" else [p.strip() for p in text.split(",") if p.strip()]
+    bad = [p for p in names if p not in PRESETS]
+    if bad or not names:
+        raise ValueError(f"{flag}: unknown preset(s) {bad or [text]}; known: {', '.join(PRESETS)} (or all)")
+    return list(dict.fromkeys(names))
