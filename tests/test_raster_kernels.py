@@ -33,7 +33,8 @@ def _bin(params, pose, K, width, height):
     opac = torch.sigmoid(params["opacity_logits"]).numpy()
     order = _binning.depth_order(depths, radii)
     packed = _composite.pack_gaussians(m2, conics, opac, params["colors"].numpy(), depths, order)
-    offsets, rows = _binning.bin_gaussians(packed, width, height, 2)
+    alive = np.ones(_binning.n_tiles(width, height), np.uint8)
+    offsets, rows = _binning.bin_slab(packed, 0, len(packed), width, height, alive, 2)
     return m2, conics, depths, opac, radii, order, offsets, order[rows]
 
 

@@ -16,6 +16,10 @@ from numba import njit, prange
 from nuav2.splat._composite import P_A, P_B, P_C, P_EX, P_EY, P_MX, P_MY, P_THR
 from nuav2.splat.constants import TILE
 
+MIN_SLAB = 2048
+FIRST_SLAB_DIVISOR = 32
+SLAB_GROWTH = 4
+
 
 @njit(cache=True, inline="always")
 def _tile_range(m, e, n_tiles_axis, size):
@@ -64,56 +68,80 @@ def _row(packed, g):
 
 
 @njit(parallel=True, cache=True, nogil=True)
-def bin_gaussians(packed, width, height, n_chunks):
-    """Tile offsets (n_tiles+1,) and, per tile, the rows of ``packed`` that touch it (int32).
+def bin_rows(packed, lo, hi, width, height, tile_alive, n_groups):
+    """Tile offsets (n_tiles+1,) and, per live tile, the rows lo..hi-1 of ``packed`` that touch it.
 
     ``packed`` holds the visible Gaussians nearest first (rows from
     :func:`nuav2.splat._composite.pack_gaussians`, permuted by :func:`depth_order`), so rows
-    are read sequentially here and every tile list is ascending, i.e. depth-ordered: a
-    stable counting sort by tile.
+    are read sequentially and every tile list comes out ascending, i.e. depth-ordered: a
+    stable counting sort by tile (count pass, prefix sum, write pass), split over
+    ``n_groups`` contiguous row blocks. Tiles with tile_alive[t] == 0 (every pixel already
+    stopped) get no entries; per tile row only the span between its first and last live tile
+    is visited, so a splat behind an opaque region costs a few range checks, not a pair per tile.
     """
     tiles_x = (width + TILE - 1) // TILE
     tiles_y = (height + TILE - 1) // TILE
     n_tiles = tiles_x * tiles_y
-    n = packed.shape[0]
-    per_chunk = (n + n_chunks - 1) // n_chunks
-    counts = np.zeros((n_chunks, n_tiles), np.int64)
-    for p in prange(n_chunks):
-        for k in range(p * per_chunk, min(n, (p + 1) * per_chunk)):
+    live_lo = np.zeros(tiles_y, np.int64)
+    live_hi = np.zeros(tiles_y, np.int64)
+    for ty in range(tiles_y):
+        first = tiles_x
+        end = 0
+        for tx in range(tiles_x):
+            if tile_alive[ty * tiles_x + tx] != 0:
+                first = min(first, tx)
+                end = tx + 1
+        live_lo[ty] = first
+        live_hi[ty] = end
+    n = hi - lo
+    per_group = (n + n_groups - 1) // n_groups
+    counts = np.zeros((n_groups, n_tiles), np.int64)
+    for p in prange(n_groups):
+        for k in range(lo + p * per_group, min(hi, lo + (p + 1) * per_group)):
             mx, my, a, b, c, thresh, ex, ey = _row(packed, k)
             tx0, tx1 = _tile_range(mx, ex, tiles_x, width)
             ty0, ty1 = _tile_range(my, ey, tiles_y, height)
             for ty in range(ty0, ty1):
-                lo, hi = _row_span(mx, my, a, b, c, thresh, ex, ey, ty, tx0, tx1, width, height)
-                for tx in range(lo, hi):
-                    counts[p, ty * tiles_x + tx] += 1
+                a0 = max(tx0, live_lo[ty])
+                a1 = min(tx1, live_hi[ty])
+                if a1 <= a0:
+                    continue
+                s0, s1 = _row_span(mx, my, a, b, c, thresh, ex, ey, ty, a0, a1, width, height)
+                for tx in range(s0, s1):
+                    t = ty * tiles_x + tx
+                    counts[p, t] += tile_alive[t]
     offsets = np.zeros(n_tiles + 1, np.int64)
-    cursors = np.empty((n_chunks, n_tiles), np.int64)
+    cursors = np.empty((n_groups, n_tiles), np.int64)
     total = 0
     for t in range(n_tiles):
         offsets[t] = total
-        for p in range(n_chunks):
+        for p in range(n_groups):
             cursors[p, t] = total
             total += counts[p, t]
     offsets[n_tiles] = total
     ids = np.empty(total, np.int32)
-    for p in prange(n_chunks):
-        for k in range(p * per_chunk, min(n, (p + 1) * per_chunk)):
+    for p in prange(n_groups):
+        for k in range(lo + p * per_group, min(hi, lo + (p + 1) * per_group)):
             mx, my, a, b, c, thresh, ex, ey = _row(packed, k)
             tx0, tx1 = _tile_range(mx, ex, tiles_x, width)
             ty0, ty1 = _tile_range(my, ey, tiles_y, height)
             for ty in range(ty0, ty1):
-                lo, hi = _row_span(mx, my, a, b, c, thresh, ex, ey, ty, tx0, tx1, width, height)
-                for tx in range(lo, hi):
+                a0 = max(tx0, live_lo[ty])
+                a1 = min(tx1, live_hi[ty])
+                if a1 <= a0:
+                    continue
+                s0, s1 = _row_span(mx, my, a, b, c, thresh, ex, ey, ty, a0, a1, width, height)
+                for tx in range(s0, s1):
                     t = ty * tiles_x + tx
-                    ids[cursors[p, t]] = k
-                    cursors[p, t] += 1
+                    if tile_alive[t] != 0:
+                        ids[cursors[p, t]] = k
+                        cursors[p, t] += 1
     return offsets, ids
 
 
-
-def bin_packed(packed: np.ndarray, width: int, height: int, n_chunks: int):
-    """Tile offsets and row ids for depth-sorted packed rows of either dtype.
+def bin_slab(packed: np.ndarray, lo: int, hi: int, width: int, height: int, tile_alive: np.ndarray,
+             n_groups: int) -> tuple[np.ndarray, np.ndarray]:
+    """Tile offsets and row ids of rows [lo, hi) for depth-sorted packed rows of either dtype.
 
     float64 rows are binned from a float32 copy, so only one kernel is ever compiled: the
     reject margin in the packed threshold (0.01 in the exponent) dwarfs float32 rounding, so
@@ -121,7 +149,27 @@ def bin_packed(packed: np.ndarray, width: int, height: int, n_chunks: int):
     """
     if packed.dtype != np.float32:
         packed = packed.astype(np.float32)
-    return bin_gaussians(packed, int(width), int(height), n_chunks)
+    return bin_rows(packed, int(lo), int(hi), int(width), int(height), tile_alive, int(n_groups))
+
+
+def slab_bounds(n_rows: int) -> list[int]:
+    """Row boundaries of the depth slabs: the first FIRST_SLAB_FRACTION of the rows (at least
+    MIN_SLAB), then each slab SLAB_GROWTH times the previous one.
+
+    Small front slabs let near opaque splats stop whole tiles before the Gaussians behind them
+    are binned; growing slabs keep the number of passes logarithmic in N.
+    """
+    bounds = [0]
+    size = max(MIN_SLAB, n_rows // FIRST_SLAB_DIVISOR)
+    while bounds[-1] < n_rows:
+        bounds.append(min(n_rows, bounds[-1] + size))
+        size *= SLAB_GROWTH
+    return bounds
+
+
+def n_tiles(width: int, height: int) -> int:
+    """Number of TILE x TILE tiles covering a width x height image."""
+    return ((width + TILE - 1) // TILE) * ((height + TILE - 1) // TILE)
 
 
 def depth_order(depths: np.ndarray, radii: np.ndarray) -> np.ndarray:
