@@ -32,7 +32,8 @@ def _bin(params, pose, K, width, height):
     radii = out.meta["radii"][0].numpy().astype(np.float64)
     opac = torch.sigmoid(params["opacity_logits"]).numpy()
     order = _binning.depth_order(depths, radii)
-    packed = _composite.pack_gaussians(m2, conics, opac, params["colors"].numpy(), depths, order)
+    packed = np.empty((len(order), _composite.PACKED_WIDTH), np.float32)
+    _composite.pack_rows(m2, conics, opac, params["colors"].numpy(), depths, order, packed, 0, len(order))
     alive = np.ones(_binning.n_tiles(width, height), np.uint8)
     offsets, rows = _binning.bin_slab(packed, 0, len(packed), width, height, alive, 2)
     return m2, conics, depths, opac, radii, order, offsets, order[rows]

@@ -30,7 +30,8 @@ def make_near_splat_scene(n: int, width: int, height: int, seed: int = 0) -> Str
     z = np.exp(rng.uniform(math.log(DEPTH_M[0]), math.log(DEPTH_M[1]), n))
     half_x = FRUSTUM_MARGIN * 0.5 * width / K[0, 0]
     half_y = FRUSTUM_MARGIN * 0.5 * height / K[1, 1]
-    cam_points = np.column_stack([rng.uniform(-half_x, half_x, n) * z, rng.uniform(-half_y, half_y, n) * z, z])
+    cam_points = np.column_stack([rng.uniform(-half_x, half_x, n) * z, rng.uniform(-half_y, half_y, n) * z,
+                                  z])
     means = cam_points @ world_T_cam[:3, :3].T + world_T_cam[:3, 3]
     quats = rng.normal(size=(n, 4))
     quats /= np.linalg.norm(quats, axis=1, keepdims=True)

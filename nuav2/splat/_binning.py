@@ -16,8 +16,8 @@ from numba import njit, prange
 from nuav2.splat._composite import P_A, P_B, P_C, P_EX, P_EY, P_MX, P_MY, P_THR
 from nuav2.splat.constants import TILE
 
-MIN_SLAB = 2048
-FIRST_SLAB_DIVISOR = 32
+MIN_SLAB = 256
+FIRST_SLAB_DIVISOR = 256
 SLAB_GROWTH = 4
 
 
@@ -72,7 +72,7 @@ def bin_rows(packed, lo, hi, width, height, tile_alive, n_groups):
     """Tile offsets (n_tiles+1,) and, per live tile, the rows lo..hi-1 of ``packed`` that touch it.
 
     ``packed`` holds the visible Gaussians nearest first (rows from
-    :func:`nuav2.splat._composite.pack_gaussians`, permuted by :func:`depth_order`), so rows
+    :func:`nuav2.splat._composite.pack_rows`, permuted by :func:`depth_order`), so rows
     are read sequentially and every tile list comes out ascending, i.e. depth-ordered: a
     stable counting sort by tile (count pass, prefix sum, write pass), split over
     ``n_groups`` contiguous row blocks. Tiles with tile_alive[t] == 0 (every pixel already
@@ -153,7 +153,7 @@ def bin_slab(packed: np.ndarray, lo: int, hi: int, width: int, height: int, tile
 
 
 def slab_bounds(n_rows: int) -> list[int]:
-    """Row boundaries of the depth slabs: the first FIRST_SLAB_FRACTION of the rows (at least
+    """Row boundaries of the depth slabs: the first 1/FIRST_SLAB_DIVISOR of the rows (at least
     MIN_SLAB), then each slab SLAB_GROWTH times the previous one.
 
     Small front slabs let near opaque splats stop whole tiles before the Gaussians behind them

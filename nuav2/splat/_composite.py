@@ -35,8 +35,6 @@ SUB = 4                          # sub-block side in pixels; a sub-block's pixel
 SUBS_PER_SIDE = TILE // SUB
 N_SUBS = SUBS_PER_SIDE * SUBS_PER_SIDE
 LANES = SUB * SUB
-# fused multiply-add only: no reassociation, no finite-math assumptions (inf extents are meaningful)
-FASTMATH = {"contract"}
 
 
 def make_consts(dtype) -> np.ndarray:
@@ -49,8 +47,7 @@ def parallel_and_serial(impl):
     twin = types.FunctionType(impl.__code__, impl.__globals__, impl.__name__ + "_serial",
                               impl.__defaults__, impl.__closure__)
     twin.__qualname__ = impl.__qualname__ + "_serial"
-    return (njit(parallel=True, cache=True, nogil=True, fastmath=FASTMATH)(impl),
-            njit(cache=True, nogil=True, fastmath=FASTMATH)(twin))
+    return njit(parallel=True, cache=True, nogil=True)(impl), njit(cache=True, nogil=True)(twin)
 
 
 def _pack_impl(means2d, conics, opacities, colors, depths, order, packed):
@@ -85,19 +82,17 @@ def _pack_impl(means2d, conics, opacities, colors, depths, order, packed):
 _pack, _pack_serial = parallel_and_serial(_pack_impl)
 
 
-def pack_gaussians(means2d: np.ndarray, conics: np.ndarray, opacities: np.ndarray, colors: np.ndarray,
-                   depths: np.ndarray, order: np.ndarray) -> np.ndarray:
-    """(len(order), 16) rows for Gaussians ``order`` (visible, nearest first): mean, conic,
-    opacity, reject threshold, colour, depth, ellipse half-extents.
+def pack_rows(means2d: np.ndarray, conics: np.ndarray, opacities: np.ndarray, colors: np.ndarray,
+              depths: np.ndarray, order: np.ndarray, packed: np.ndarray, lo: int, hi: int) -> None:
+    """Fill rows lo..hi-1 of ``packed`` (16 wide) for Gaussians order[lo:hi] (visible, nearest
+    first): mean, conic, opacity, reject threshold, colour, depth, ellipse half-extents.
 
     The threshold is ln(255 o) + margin: exponents above it give alpha < 1/255 in any precision.
     The half-extents bound {sigma <= threshold}: e_x = sqrt(2 thr cov_xx) with cov = conic^-1
     (inf when the float conic is degenerate: the Gaussian is then tested against every pixel).
     """
-    packed = np.empty((len(order), PACKED_WIDTH), means2d.dtype)
     pack = _pack if means2d.dtype == np.float32 else _pack_serial
-    pack(means2d, conics, opacities, colors, depths, order, packed)
-    return packed
+    pack(means2d, conics, opacities, colors, depths, order[lo:hi], packed[lo:hi])
 
 
 @njit(cache=True, inline="always")

@@ -17,10 +17,10 @@ from nuav2.splat import _backward, _binning, _composite, _forward, _project
 from nuav2.splat._stages import stage
 
 
-def _np(t: torch.Tensor | None, like: np.ndarray | None = None, dtype=None) -> np.ndarray:
+def _np(t: torch.Tensor | None, shape: tuple[int, ...] = (), dtype=None) -> np.ndarray:
+    """A C-contiguous numpy view (or converted copy) of ``t``; zeros of ``shape`` for a missing gradient."""
     if t is None:
-        assert like is not None
-        return np.zeros_like(like, dtype=dtype or like.dtype)
+        return np.zeros(shape, dtype)
     a = t.detach().contiguous().numpy()
     return a if dtype is None else a.astype(dtype, copy=False)
 
@@ -51,43 +51,36 @@ def n_chunks() -> int:
 
 
 class ProjectFn(torch.autograd.Function):
-    """(means, quats, log_scales) -> means2d (C,N,2), conics (C,N,3), depths (C,N), radii (C,N,2)."""
+    """(means, quats, log_scales) -> means2d (C,N,2), conics (C,N,3), depths (C,N), radii (C,N,2) int32."""
 
     @staticmethod
     def forward(ctx, means, quats, log_scales, opacities, cam_T_world, Ks, width, height, near, far,
                 radius_clip):
-        m = _np(means, dtype=np.float64)
-        q = _np(quats, dtype=np.float64)
-        s = _np(log_scales, dtype=np.float64)
-        o = _np(opacities, dtype=np.float64)
-        means2d, conics, depths, radii = _project.empty_projection(len(cam_T_world), len(m))
+        m, q, s, o = (_np(t) for t in (means, quats, log_scales, opacities))
+        means2d, conics, depths, radii = _project.empty_projection(len(cam_T_world), len(m), m.dtype)
         with threads_for(len(m) * len(cam_T_world)), stage("projection_fwd"):
             _project.project_forward(m, q, s, o, cam_T_world, Ks, float(width), float(height), float(near),
                                      float(far), float(radius_clip), means2d, conics, depths, radii)
         ctx.arrays = (m, q, s, cam_T_world, Ks, float(width), float(height), radii)
-        ctx.dtype = means.dtype
         radii_t = torch.from_numpy(radii)
         ctx.mark_non_differentiable(radii_t)
-        dt = means.dtype
-        return (torch.from_numpy(means2d).to(dt), torch.from_numpy(conics).to(dt),
-                torch.from_numpy(depths).to(dt), radii_t)
+        return torch.from_numpy(means2d), torch.from_numpy(conics), torch.from_numpy(depths), radii_t
 
     @staticmethod
     def backward(ctx, g_means2d, g_conics, g_depths, _g_radii):
         m, q, s, cam_T_world, Ks, width, height, radii = ctx.arrays
         n_cams, n = radii.shape[:2]
-        gm2 = _np(g_means2d, np.zeros((n_cams, n, 2)), np.float64)
-        gc = _np(g_conics, np.zeros((n_cams, n, 3)), np.float64)
-        gd = _np(g_depths, np.zeros((n_cams, n)), np.float64)
-        g_means = np.zeros_like(m)
-        g_quats = np.zeros_like(q)
-        g_scales = np.zeros_like(s)
+        gm2 = _np(g_means2d, (n_cams, n, 2), m.dtype)
+        gc = _np(g_conics, (n_cams, n, 3), m.dtype)
+        gd = _np(g_depths, (n_cams, n), m.dtype)
+        g_means = np.empty_like(m)
+        g_quats = np.empty_like(q)
+        g_scales = np.empty_like(s)
         with threads_for(len(m) * n_cams), stage("projection_bwd"):
             _project.project_backward(m, q, s, cam_T_world, Ks, width, height, radii, gm2, gc, gd,
                                       g_means, g_quats, g_scales)
-        dt = ctx.dtype
-        return (torch.from_numpy(g_means).to(dt), torch.from_numpy(g_quats).to(dt),
-                torch.from_numpy(g_scales).to(dt), None, None, None, None, None, None, None, None)
+        return (torch.from_numpy(g_means), torch.from_numpy(g_quats), torch.from_numpy(g_scales),
+                None, None, None, None, None, None, None, None)
 
 
 class CompositeFn(torch.autograd.Function):
@@ -108,9 +101,9 @@ class CompositeFn(torch.autograd.Function):
     def backward(ctx, g_color, g_depth, g_alpha):
         frame = ctx.frame
         T = frame.T
-        gcol = _np(g_color, np.zeros(T.shape + (3,), T.dtype), T.dtype)
-        gdep = _np(g_depth, T, T.dtype)
-        galp = _np(g_alpha, T, T.dtype)
+        gcol = _np(g_color, T.shape + (3,), T.dtype)
+        gdep = _np(g_depth, T.shape, T.dtype)
+        galp = _np(g_alpha, T.shape, T.dtype)
         g = torch.from_numpy(composite_backward(frame, gcol, gdep, galp, ctx.n))     # (12, N) channel-major
         C = _composite
         if ctx.absgrad_out is not None:
@@ -123,7 +116,7 @@ class CompositeFn(torch.autograd.Function):
 class Frame:
     """What one camera's forward leaves for its backward (and for the benchmark's counts)."""
 
-    packed: np.ndarray          # (rows, 16) visible Gaussians nearest first
+    packed: np.ndarray          # (rows, 16) visible Gaussians nearest first (rows of binned slabs filled)
     order: np.ndarray           # row -> Gaussian id
     slab_offsets: np.ndarray    # (n_slabs, n_tiles + 1) into ids
     ids: np.ndarray             # rows per tile per slab
@@ -137,7 +130,8 @@ class Frame:
 
 def composite_forward(m2: np.ndarray, con: np.ndarray, op: np.ndarray, col: np.ndarray, dep: np.ndarray,
                       radii: np.ndarray, width: int, height: int) -> Frame:
-    """Depth sort, pack, then per depth slab: bin into the tiles still alive and composite."""
+    """Depth sort, then per depth slab (nearest first): pack its rows, bin them into the tiles that
+    still have a live pixel, composite; stop once every pixel has stopped."""
     dt = m2.dtype
     with stage("sort"):
         order = _binning.depth_order(dep, radii)
@@ -145,7 +139,7 @@ def composite_forward(m2: np.ndarray, con: np.ndarray, op: np.ndarray, col: np.n
     with threads_for(work):
         groups = n_chunks()
         with stage("pack"):
-            packed = _composite.pack_gaussians(m2, con, op, col, dep, order)
+            packed = np.empty((len(order), _composite.PACKED_WIDTH), dt)
             color = np.zeros((height, width, 3), dt)
             depth = np.zeros((height, width), dt)
             T = np.ones((height, width), dt)
@@ -161,13 +155,15 @@ def composite_forward(m2: np.ndarray, con: np.ndarray, op: np.ndarray, col: np.n
         offsets_per_slab, ids_per_slab, base = [], [], 0
         kernel = _forward.slab_kernel(dt)
         for lo, hi in zip(bounds[:-1], bounds[1:]):
+            with stage("pack"):
+                _composite.pack_rows(m2, con, op, col, dep, order, packed, lo, hi)
             with stage("binning"):
                 offsets, ids = _binning.bin_slab(packed, lo, hi, width, height, tile_alive, groups)
                 counts = np.diff(offsets)
                 tiles = _composite.heaviest_first(counts)[:np.count_nonzero(counts)]
             with stage("composite_fwd"):
-                kernel(packed, offsets, ids, tiles, px, py, groups, consts, color, depth, T, last, done, count,
-                       tile_alive)
+                kernel(packed, offsets, ids, tiles, px, py, groups, consts, color, depth, T, last, done,
+                       count, tile_alive)
             offsets_per_slab.append(offsets + base)
             ids_per_slab.append(ids)
             base += len(ids)
@@ -179,19 +175,25 @@ def composite_forward(m2: np.ndarray, con: np.ndarray, op: np.ndarray, col: np.n
     return Frame(packed, order, slab_offsets, ids, color, depth, T, last, count, work)
 
 
-def composite_backward(frame: Frame, gcol: np.ndarray, gdep: np.ndarray, galp: np.ndarray, n: int) -> np.ndarray:
-    """(12, n) per-Gaussian gradients of the packed inputs, channel-major, in the caller's order."""
+def composite_backward(frame: Frame, gcol: np.ndarray, gdep: np.ndarray, galp: np.ndarray,
+                       n: int) -> np.ndarray:
+    """(12, n) per-Gaussian gradients of the packed inputs, channel-major, in the caller's order.
+
+    Only rows up to the furthest last contributor can receive gradient, so the per-group
+    buffers and their reduction stop there (behind an opaque foreground that is a short prefix).
+    """
     dt = frame.T.dtype
     height, width = frame.T.shape
+    rows = int(frame.last.max(initial=-1)) + 1
     with threads_for(frame.work):
         groups = n_chunks()
         with stage("composite_bwd"):
             per_tile = (frame.slab_offsets[:, 1:] - frame.slab_offsets[:, :-1]).sum(0)
             tiles = _composite.heaviest_first(per_tile)[:np.count_nonzero(per_tile)]
-            grads = np.zeros((groups, len(frame.packed), _composite.N_GRAD), dt)
+            grads = np.zeros((groups, rows, _composite.N_GRAD), dt)
             _backward.backward_kernel(dt)(
                 frame.packed, frame.slab_offsets, frame.ids, tiles, _composite.pixel_centres(width, dt),
                 _composite.pixel_centres(height, dt), groups, _composite.make_consts(dt), frame.T, frame.last,
                 gcol, gdep, galp, grads)
         with stage("unpack"):
-            return _composite.unpack_grads(grads, frame.order, n)
+            return _composite.unpack_grads(grads, frame.order[:rows], n)

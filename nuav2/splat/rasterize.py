@@ -117,7 +117,7 @@ def _rasterize_cpu(means, quats, log_scales, opacity_logits, colors, cams, width
         alphas.append(alpha)
         exp_depths.append(depth_sum / alpha.clamp_min(ALPHA_FLOOR_DEPTH))
     return _finish(rgbs, alphas, exp_depths, cams.batched, dict(
-        means2d=means2d, radii=radii_to_int(radii), visible=(radii > 0).any(-1), depths=depths,
+        means2d=means2d, radii=radii, visible=(radii > 0).any(-1), depths=depths,
         conics=conics, backend="cpu"))
 
 
