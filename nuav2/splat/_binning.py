@@ -68,8 +68,9 @@ def _row(packed, g):
 
 
 @njit(parallel=True, cache=True, nogil=True)
-def bin_rows(packed, lo, hi, width, height, tile_alive, n_groups):
-    """Tile offsets (n_tiles+1,) and, per live tile, the rows lo..hi-1 of ``packed`` that touch it.
+def bin_rows(packed, base, lo, hi, width, height, tile_alive, n_groups):
+    """Tile offsets (n_tiles+1,) and, per live tile, the rows lo..hi-1 that touch it (row k is
+    packed[k - base]).
 
     ``packed`` holds the visible Gaussians nearest first (rows from
     :func:`nuav2.splat._composite.pack_rows`, permuted by :func:`depth_order`), so rows
@@ -98,7 +99,7 @@ def bin_rows(packed, lo, hi, width, height, tile_alive, n_groups):
     counts = np.zeros((n_groups, n_tiles), np.int64)
     for p in prange(n_groups):
         for k in range(lo + p * per_group, min(hi, lo + (p + 1) * per_group)):
-            mx, my, a, b, c, thresh, ex, ey = _row(packed, k)
+            mx, my, a, b, c, thresh, ex, ey = _row(packed, k - base)
             tx0, tx1 = _tile_range(mx, ex, tiles_x, width)
             ty0, ty1 = _tile_range(my, ey, tiles_y, height)
             for ty in range(ty0, ty1):
@@ -122,7 +123,7 @@ def bin_rows(packed, lo, hi, width, height, tile_alive, n_groups):
     ids = np.empty(total, np.int32)
     for p in prange(n_groups):
         for k in range(lo + p * per_group, min(hi, lo + (p + 1) * per_group)):
-            mx, my, a, b, c, thresh, ex, ey = _row(packed, k)
+            mx, my, a, b, c, thresh, ex, ey = _row(packed, k - base)
             tx0, tx1 = _tile_range(mx, ex, tiles_x, width)
             ty0, ty1 = _tile_range(my, ey, tiles_y, height)
             for ty in range(ty0, ty1):
@@ -145,11 +146,15 @@ def bin_slab(packed: np.ndarray, lo: int, hi: int, width: int, height: int, tile
 
     float64 rows are binned from a float32 copy, so only one kernel is ever compiled: the
     reject margin in the packed threshold (0.01 in the exponent) dwarfs float32 rounding, so
-    no contributing pair can be lost.
+    no contributing pair can be lost (values past the float32 range become inf, which only
+    widens a Gaussian's tile range).
     """
+    base = 0
     if packed.dtype != np.float32:
-        packed = packed.astype(np.float32)
-    return bin_rows(packed, int(lo), int(hi), int(width), int(height), tile_alive, int(n_groups))
+        with np.errstate(over="ignore"):
+            packed = packed[lo:hi, :P_EY + 1].astype(np.float32)     # columns 13-15 are padding
+        base = lo
+    return bin_rows(packed, base, int(lo), int(hi), int(width), int(height), tile_alive, int(n_groups))
 
 
 def slab_bounds(n_rows: int) -> list[int]:
