@@ -14,7 +14,7 @@ import numpy as np
 import torch
 
 from nuav2.splat import _backward, _binning, _composite, _forward, _project
-from nuav2.splat._stages import stage
+from nuav2.splat._stages import count, recording, stage
 
 
 def _np(t: torch.Tensor | None, shape: tuple[int, ...] = (), dtype=None) -> np.ndarray:
@@ -114,7 +114,7 @@ class CompositeFn(torch.autograd.Function):
 
 @dataclass
 class Frame:
-    """What one camera's forward leaves for its backward (and for the benchmark's counts)."""
+    """What one camera's forward leaves for its backward."""
 
     packed: np.ndarray          # (rows, 16) visible Gaussians nearest first (rows of binned slabs filled)
     order: np.ndarray           # row -> Gaussian id
@@ -124,7 +124,6 @@ class Frame:
     depth: np.ndarray           # (H, W) depth sum
     T: np.ndarray               # (H, W) final transmittance
     last: np.ndarray            # (H, W) last contributing row, -1 for none
-    count: np.ndarray           # (H, W) number of contributing Gaussians
     work: int                   # pixels + visible Gaussians (thread heuristic)
 
 
@@ -145,7 +144,7 @@ def composite_forward(m2: np.ndarray, con: np.ndarray, op: np.ndarray, col: np.n
             T = np.ones((height, width), dt)
             last = np.full((height, width), -1, np.int32)
             done = np.zeros((height, width), np.uint8)
-            count = np.zeros((height, width), np.int32)
+            count_img = np.zeros((height, width), np.int32)
             px = _composite.pixel_centres(width, dt)
             py = _composite.pixel_centres(height, dt)
             consts = _composite.make_consts(dt)
@@ -163,7 +162,7 @@ def composite_forward(m2: np.ndarray, con: np.ndarray, op: np.ndarray, col: np.n
                 tiles = _composite.heaviest_first(counts)[:np.count_nonzero(counts)]
             with stage("composite_fwd"):
                 kernel(packed, offsets, ids, tiles, px, py, groups, consts, color, depth, T, last, done,
-                       count, tile_alive)
+                       count_img, tile_alive)
             offsets_per_slab.append(offsets + base)
             ids_per_slab.append(ids)
             base += len(ids)
@@ -172,7 +171,11 @@ def composite_forward(m2: np.ndarray, con: np.ndarray, op: np.ndarray, col: np.n
     slab_offsets = (np.stack(offsets_per_slab) if offsets_per_slab
                     else np.zeros((1, n_tiles + 1), np.int64))
     ids = np.concatenate(ids_per_slab) if ids_per_slab else np.zeros(0, np.int32)
-    return Frame(packed, order, slab_offsets, ids, color, depth, T, last, count, work)
+    if recording():
+        count("tile_pairs", len(ids))
+        count("contributions", int(count_img.sum()))
+        count("depth_slabs", len(offsets_per_slab))
+    return Frame(packed, order, slab_offsets, ids, color, depth, T, last, work)
 
 
 def composite_backward(frame: Frame, gcol: np.ndarray, gdep: np.ndarray, galp: np.ndarray,

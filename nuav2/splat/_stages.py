@@ -1,8 +1,9 @@
 """Optional per-stage timing of the CPU rasterizer, for ``nuav2 bench raster``.
 
-The kernels' callers wrap each stage in :func:`stage`; it costs one global lookup unless a
-benchmark has opened :func:`record_stages`, which then sums wall and process CPU time
-(all threads) per stage name over the calls made inside it.
+The kernels' callers wrap each stage in :func:`stage` and report work counts with
+:func:`count`; both cost one global lookup unless a benchmark has opened
+:func:`record_stages`, which then sums wall and process CPU time (all threads) per stage
+name, and the counts per name, over the calls made inside it.
 """
 
 from __future__ import annotations
@@ -16,7 +17,8 @@ _active: dict[str, list[float]] | None = None
 
 @contextlib.contextmanager
 def record_stages() -> Iterator[dict[str, list[float]]]:
-    """Collect {stage: [wall_s, cpu_s]} for the rasterizer calls made inside the block."""
+    """Collect {stage: [wall_s, cpu_s]} and {counter: [total]} for the rasterizer calls made
+    inside the block."""
     global _active
     outer = _active
     _active = {}
@@ -24,6 +26,17 @@ def record_stages() -> Iterator[dict[str, list[float]]]:
         yield _active
     finally:
         _active = outer
+
+
+def recording() -> bool:
+    """Whether a recorder is open (so that counts worth a pass over an image are taken)."""
+    return _active is not None
+
+
+def count(name: str, value: float) -> None:
+    """Add ``value`` to the counter ``name`` when a recorder is open."""
+    if _active is not None:
+        _active.setdefault(name, [0.0])[0] += value
 
 
 @contextlib.contextmanager

@@ -31,6 +31,11 @@ import torch
 from nuav2.splat.constants import ALPHA_MAX, ALPHA_MIN, EPS2D, T_STOP
 
 PIXEL_CHUNK_ELEMENTS = 8_000_000     # pixels x list positions evaluated at once in the indices port
+_max_isects: int | None = None       # set by rasterize_gsplat_torch for the duration of a call
+
+
+class ReferenceTooLarge(RuntimeError):
+    """gsplat's intersections would exceed the caller's budget (its torch path holds them all)."""
 
 
 def gsplat_installed() -> bool:
@@ -58,6 +63,10 @@ def isect_tiles(means2d, radii, depths, tile_size, tile_width, tile_height, sort
     span = hi - lo
     per_gauss = span.prod(-1) * (rad > 0).all(-1)
     flat = per_gauss.flatten().long()
+    total = int(flat.sum())
+    if _max_isects is not None and total > _max_isects:
+        raise ReferenceTooLarge(f"gsplat's torch path needs {total:,} tile-Gaussian pairs "
+                                f"(budget {_max_isects:,}); skipped")
     index = torch.repeat_interleave(torch.arange(n_img * n), flat)            # image * N + Gaussian
     local = torch.arange(len(index)) - torch.repeat_interleave(torch.cumsum(flat, 0) - flat, flat)
     w = span[..., 0].reshape(-1).long()[index]
@@ -167,8 +176,9 @@ def _sh(degrees_to_use, dirs, coeffs, masks=None):
 
 
 @contextlib.contextmanager
-def _cpu_glue():
+def _cpu_glue(max_isects: int | None):
     """Point gsplat's CUDA-only entry points at the CPU pieces above for the enclosed block."""
+    global _max_isects
     import gsplat.cuda._torch_impl as torch_impl
     import gsplat.cuda._wrapper as wrapper
     import gsplat.rendering as rendering
@@ -187,8 +197,10 @@ def _cpu_glue():
         for mod, name, fn in patches:
             setattr(mod, name, fn)
         sys.modules["nerfacc"] = shim
+        _max_isects = max_isects
         yield
     finally:
+        _max_isects = None
         for mod, name, fn in saved:
             setattr(mod, name, fn)
         if had_nerfacc:
@@ -199,12 +211,14 @@ def _cpu_glue():
 
 def rasterize_gsplat_torch(means, quats, log_scales, opacity_logits, colors, world_T_cam, K, width: int,
                            height: int, *, near: float = 0.01, far: float = 1e10, background=None,
-                           sh_degree: int | None = None, eps2d: float = EPS2D):
+                           sh_degree: int | None = None, eps2d: float = EPS2D,
+                           max_isects: int | None = None):
     """gsplat's torch rasterization with nuav2's inputs (raw parameters, world_T_cam poses) on the
     CPU; returns (rgb, alpha, depth) shaped like :func:`nuav2.splat.rasterize` and gsplat's meta.
 
     The nuav2 conventions are applied here, as a user of gsplat would: quaternions (w, x, y, z),
     scales = exp(log_scales), opacities = sigmoid(logits), viewmats = inverse(world_T_cam).
+    Raises :class:`ReferenceTooLarge` when gsplat would hold more than ``max_isects`` pairs.
     """
     from gsplat.rendering import _rasterization
 
@@ -218,7 +232,7 @@ def rasterize_gsplat_torch(means, quats, log_scales, opacity_logits, colors, wor
         bg = torch.as_tensor(background, dtype=dtype).expand(len(viewmats), 3)
     if sh_degree is None and colors.ndim == 3:
         sh_degree = math.isqrt(colors.shape[1]) - 1
-    with _cpu_glue():
+    with _cpu_glue(max_isects):
         renders, alphas, meta = _rasterization(
             means, quats, torch.exp(log_scales), torch.sigmoid(opacity_logits), colors, viewmats, Ks,
             int(width), int(height), near_plane=near, far_plane=far, eps2d=eps2d, sh_degree=sh_degree,
