@@ -32,6 +32,11 @@ from nuav2.splat.constants import ALPHA_MAX, ALPHA_MIN, EPS2D, T_STOP
 
 PIXEL_CHUNK_ELEMENTS = 8_000_000     # pixels x list positions evaluated at once in the indices port
 _max_isects: int | None = None       # set by rasterize_gsplat_torch for the duration of a call
+# gsplat's torch loop visits each tile list in steps of batch_per_iter x 256 entries and forgets
+# between steps which pixels stopped, so with its default (100) a pixel whose list is longer
+# than 25,600 resumes after T fell to 1e-4 (up to 1e-4 of colour per step); one step covering
+# every list keeps the stop rule of gsplat's CUDA kernels, which is what the comparison is about
+ONE_STEP = 1 << 40
 
 
 class ReferenceTooLarge(RuntimeError):
@@ -236,7 +241,7 @@ def rasterize_gsplat_torch(means, quats, log_scales, opacity_logits, colors, wor
         renders, alphas, meta = _rasterization(
             means, quats, torch.exp(log_scales), torch.sigmoid(opacity_logits), colors, viewmats, Ks,
             int(width), int(height), near_plane=near, far_plane=far, eps2d=eps2d, sh_degree=sh_degree,
-            backgrounds=bg, render_mode="RGB+ED", rasterize_mode="classic")
+            backgrounds=bg, render_mode="RGB+ED", rasterize_mode="classic", batch_per_iter=ONE_STEP)
     rgb, alpha, depth = renders[..., :3], alphas[..., 0], renders[..., 3]
     if not batched:
         rgb, alpha, depth = rgb[0], alpha[0], depth[0]
