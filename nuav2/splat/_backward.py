@@ -61,8 +61,9 @@ def _lane_sums_into(buf, grads, p, g):
 
 
 def _composite_backward(packed, slab_offsets, ids, tile_order, px_centres, py_centres, n_groups, consts,
-                        T_img, last_img, g_color, g_depth, g_alpha, grads):
-    """Add dL/d(per-Gaussian inputs) into grads (n_groups, rows, 12) given dL/d(outputs).
+                        T_img, last_img, g_color, g_depth, g_alpha, grads, contributions):
+    """Add dL/d(per-Gaussian inputs) into grads (n_groups, rows, 12) given dL/d(outputs), and the
+    number of Gaussian-pixel contributions each group visited into contributions (n_groups,).
 
     slab_offsets (n_slabs, n_tiles + 1): tile t's list in slab s is
     ids[slab_offsets[s, t]:slab_offsets[s, t + 1]]; last_img holds each pixel's last
@@ -184,6 +185,7 @@ def _composite_backward(packed, slab_offsets, ids, tile_order, px_centres, py_ce
                                 n_ok += okl[l]            # there would halve its vector width
                     if n_ok > 0:
                         _lane_sums_into(buf, grads, p, g)
+                        contributions[p] += n_ok
 
 
 composite_backward, composite_backward_serial = parallel_and_serial(_composite_backward)

@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from nuav2.splat._composite import P_A, P_B, P_C, P_EX, P_EY, P_MX, P_MY, P_THR
+from nuav2.splat._composite import P_A, P_B, P_C, P_EX, P_EY, P_MX, P_MY, P_THR, band_x_extent
 from nuav2.splat.constants import TILE
 
 MIN_SLAB = 256
@@ -35,24 +35,11 @@ def _tile_range(m, e, n_tiles_axis, size):
 
 @njit(cache=True, inline="always")
 def _row_span(mx, my, a, b, c, thresh, ex, ey, ty, tx0, tx1, width, height):
-    """Tiles [lo, hi) of tile row ty that the ellipse {sigma <= thresh} reaches (exact).
-
-    The ellipse cut by the row's band of pixel-centre y is convex, so its x-extent is one
-    interval: its left (right) edge x(dy) is convex (concave) in dy and extremal at the
-    ellipse's leftmost (rightmost) point, so clamping that point's dy into the band gives it.
-    """
-    det = a * c - b * b
-    if not (ex < 1e30 and det > 0.0 and a > 0.0 and c > 0.0):
-        return tx0, tx1
-    dy0 = max(ty * TILE + 0.5 - my, -ey)
-    dy1 = min(min((ty + 1) * TILE, height) - 0.5 - my, ey)
-    if dy1 < dy0:
+    """Tiles [lo, hi) of tile row ty that the ellipse {sigma <= thresh} reaches (exact)."""
+    x_lo, x_hi = band_x_extent(ty * TILE + 0.5 - my, min((ty + 1) * TILE, height) - 0.5 - my, a, b, c,
+                               thresh, ex, ey)
+    if x_lo > x_hi:
         return 0, 0
-    two_ta = 2.0 * thresh * a
-    dy = min(dy1, max(dy0, b * ex / c))                  # leftmost point's dy, clamped to the band
-    x_lo = (-b * dy - np.sqrt(max(two_ta - det * dy * dy, 0.0))) / a
-    dy = min(dy1, max(dy0, -b * ex / c))                 # rightmost point's dy
-    x_hi = (-b * dy + np.sqrt(max(two_ta - det * dy * dy, 0.0))) / a
     lo = max(0.0, np.ceil(mx + x_lo - 0.5))
     hi = min(width - 1.0, np.floor(mx + x_hi - 0.5))
     if hi < lo:

@@ -108,6 +108,30 @@ def sub_range(m, e, base):
 
 
 @njit(cache=True, inline="always")
+def band_x_extent(dy0, dy1, a, b, c, thresh, ex, ey):
+    """x-extent [x_lo, x_hi], relative to the mean, of the ellipse {sigma <= thresh} cut by the
+    band dy0 <= dy <= dy1 (float64; x_lo > x_hi when they miss; -inf, inf for a degenerate conic).
+
+    The cut is convex, so its x-extent is one interval: the ellipse's left (right) edge x(dy) is
+    convex (concave) in dy and extremal at its leftmost (rightmost) point, dy = +-b e_x / c, so
+    clamping that dy into the band gives the extent.
+    """
+    det = a * c - b * b
+    if not (ex < 1e30 and det > 0.0 and a > 0.0 and c > 0.0):
+        return -np.inf, np.inf
+    dy0 = max(dy0, -ey)
+    dy1 = min(dy1, ey)
+    if dy1 < dy0:
+        return 1.0, -1.0
+    two_ta = 2.0 * thresh * a
+    dy = min(dy1, max(dy0, b * ex / c))                  # leftmost point's dy, clamped to the band
+    x_lo = (-b * dy - np.sqrt(max(two_ta - det * dy * dy, 0.0))) / a
+    dy = min(dy1, max(dy0, -b * ex / c))                 # rightmost point's dy
+    x_hi = (-b * dy + np.sqrt(max(two_ta - det * dy * dy, 0.0))) / a
+    return x_lo, x_hi
+
+
+@njit(cache=True, inline="always")
 def row_data(packed, g):
     return (packed[g, P_MX], packed[g, P_MY], packed[g, P_A], packed[g, P_B], packed[g, P_C], packed[g, P_O],
             packed[g, P_THR], packed[g, P_R], packed[g, P_G], packed[g, P_BL], packed[g, P_Z])

@@ -36,11 +36,11 @@ from nuav2.splat.constants import TILE
 
 
 def _composite_slab(packed, offsets, ids, tiles, px_centres, py_centres, n_groups, consts,
-                    color, depth, T_img, last_img, done_img, count_img, tile_alive):
+                    color, depth, T_img, last_img, done_img, tile_alive):
     """Composite the tile lists ``ids[offsets[t]:offsets[t+1]]`` of the tiles in ``tiles`` onto
     the image state: colour sum (H,W,3), depth sum (H,W), T (H,W), last contributing row (H,W,
-    -1 none), done (H,W; 1 once the pixel stopped), count (H,W) of contributions; sets
-    tile_alive[t] to 0 once every pixel of tile t has stopped."""
+    -1 none), done (H,W; 1 once the pixel stopped); sets tile_alive[t] to 0 once every pixel of
+    tile t has stopped."""
     height, width = T_img.shape
     tiles_x = (width + TILE - 1) // TILE
     n_work = tiles.shape[0]
@@ -52,14 +52,13 @@ def _composite_slab(packed, offsets, ids, tiles, px_centres, py_centres, n_group
     tstop = consts[C_TSTOP]
     dt = T_img.dtype
     L = LANES
-    NS = 7 * L            # lane state per sub-block: px, py, T, r, g, b, depth
-    one_i = np.int32(1)   # 32-bit lane integers: a 64-bit one would halve the vector width
-    zero_i = np.int32(0)
+    NS = 7 * L            # float lane state per sub-block: px, py, T, r, g, b, depth
+    NI = 2 * L            # int lane state per sub-block: last contributing row, alive
+    zero_i = np.int32(0)  # 32-bit lane integers: a 64-bit one would halve the vector width
     for p in prange(n_groups):
+        # one float and one int buffer: fewer arrays, fewer aliasing checks around the lane loop
         st = np.empty(N_SUBS * NS, dt)
-        last = np.empty(N_SUBS * L, np.int32)
-        alive = np.empty(N_SUBS * L, np.int32)
-        cnt = np.empty(N_SUBS * L, np.int32)
+        ist = np.empty(N_SUBS * NI, np.int32)
         sub_alive = np.empty(N_SUBS, np.int64)
         for k in range(p, n_work, n_groups):
             t = tiles[k]
@@ -81,10 +80,9 @@ def _composite_slab(packed, offsets, ids, tiles, px_centres, py_centres, n_group
                     st[base + 4 * L + l] = color[iy, ix, 1]
                     st[base + 5 * L + l] = color[iy, ix, 2]
                     st[base + 6 * L + l] = depth[iy, ix]
-                    last[sb * L + l] = last_img[iy, ix]
-                    cnt[sb * L + l] = count_img[iy, ix]
+                    ist[sb * NI + l] = last_img[iy, ix]
                     live = 1 if (inside and done_img[iy, ix] == 0) else 0
-                    alive[sb * L + l] = live
+                    ist[sb * NI + L + l] = live
                     n_live += live
                 sub_alive[sb] = n_live
                 live_subs += 1 if n_live > 0 else 0
@@ -102,15 +100,13 @@ def _composite_slab(packed, offsets, ids, tiles, px_centres, py_centres, n_group
                         if sub_alive[sb] == 0:
                             continue
                         sst = st[sb * NS:(sb + 1) * NS]
-                        slast = last[sb * L:(sb + 1) * L]
-                        salive = alive[sb * L:(sb + 1) * L]
-                        scnt = cnt[sb * L:(sb + 1) * L]
+                        sint = ist[sb * NI:(sb + 1) * NI]
                         n_live = np.int32(0)
                         for l in range(L):
                             dx = mx - sst[l]
                             dy = my - sst[L + l]
                             s = half * (a * dx * dx + c * dy * dy) + b * dx * dy
-                            ok = (s >= zero) and (s <= thr) and (salive[l] != 0)
+                            ok = (s >= zero) and (s <= thr) and (sint[L + l] != 0)
                             alpha = min(amax, o * exp_neg_lanes(s if ok else zero))
                             ok = ok and (alpha >= amin)
                             T = sst[2 * L + l]
@@ -123,12 +119,10 @@ def _composite_slab(packed, offsets, ids, tiles, px_centres, py_centres, n_group
                             sst[5 * L + l] += w * cb
                             sst[6 * L + l] += w * z
                             sst[2 * L + l] = next_T if use else T
-                            slast[l] = gg if use else slast[l]
-                            scnt[l] += one_i if use else zero_i
-                            still = zero_i if stop else salive[l]
-                            salive[l] = still
+                            sint[l] = gg if use else sint[l]
+                            sint[L + l] = zero_i if stop else sint[L + l]
                         for l in range(L):                # a reduction inside the lane loop
-                            n_live += salive[l]           # would halve its vector width
+                            n_live += sint[L + l]         # would halve its vector width
                         sub_alive[sb] = n_live
                         if n_live == 0:
                             live_subs -= 1
@@ -142,9 +136,8 @@ def _composite_slab(packed, offsets, ids, tiles, px_centres, py_centres, n_group
                         color[iy, ix, 1] = st[base + 4 * L + l]
                         color[iy, ix, 2] = st[base + 5 * L + l]
                         depth[iy, ix] = st[base + 6 * L + l]
-                        last_img[iy, ix] = last[sb * L + l]
-                        count_img[iy, ix] = cnt[sb * L + l]
-                        done_img[iy, ix] = 1 - alive[sb * L + l]
+                        last_img[iy, ix] = ist[sb * NI + l]
+                        done_img[iy, ix] = 1 - ist[sb * NI + L + l]
             tile_alive[t] = 1 if live_subs > 0 else 0
 
 

@@ -14,7 +14,7 @@ import numpy as np
 import torch
 
 from nuav2.splat import _backward, _binning, _composite, _forward, _project
-from nuav2.splat._stages import count, recording, stage
+from nuav2.splat._stages import count, stage
 
 
 def _np(t: torch.Tensor | None, shape: tuple[int, ...] = (), dtype=None) -> np.ndarray:
@@ -144,7 +144,6 @@ def composite_forward(m2: np.ndarray, con: np.ndarray, op: np.ndarray, col: np.n
             T = np.ones((height, width), dt)
             last = np.full((height, width), -1, np.int32)
             done = np.zeros((height, width), np.uint8)
-            count_img = np.zeros((height, width), np.int32)
             px = _composite.pixel_centres(width, dt)
             py = _composite.pixel_centres(height, dt)
             consts = _composite.make_consts(dt)
@@ -162,7 +161,7 @@ def composite_forward(m2: np.ndarray, con: np.ndarray, op: np.ndarray, col: np.n
                 tiles = _composite.heaviest_first(counts)[:np.count_nonzero(counts)]
             with stage("composite_fwd"):
                 kernel(packed, offsets, ids, tiles, px, py, groups, consts, color, depth, T, last, done,
-                       count_img, tile_alive)
+                       tile_alive)
             offsets_per_slab.append(offsets + base)
             ids_per_slab.append(ids)
             base += len(ids)
@@ -171,10 +170,8 @@ def composite_forward(m2: np.ndarray, con: np.ndarray, op: np.ndarray, col: np.n
     slab_offsets = (np.stack(offsets_per_slab) if offsets_per_slab
                     else np.zeros((1, n_tiles + 1), np.int64))
     ids = np.concatenate(ids_per_slab) if ids_per_slab else np.zeros(0, np.int32)
-    if recording():
-        count("tile_pairs", len(ids))
-        count("contributions", int(count_img.sum()))
-        count("depth_slabs", len(offsets_per_slab))
+    count("tile_pairs", len(ids))
+    count("depth_slabs", len(offsets_per_slab))
     return Frame(packed, order, slab_offsets, ids, color, depth, T, last, work)
 
 
@@ -194,9 +191,11 @@ def composite_backward(frame: Frame, gcol: np.ndarray, gdep: np.ndarray, galp: n
             per_tile = (frame.slab_offsets[:, 1:] - frame.slab_offsets[:, :-1]).sum(0)
             tiles = _composite.heaviest_first(per_tile)[:np.count_nonzero(per_tile)]
             grads = np.zeros((groups, rows, _composite.N_GRAD), dt)
+            contributions = np.zeros(groups, np.int64)
             _backward.backward_kernel(dt)(
                 frame.packed, frame.slab_offsets, frame.ids, tiles, _composite.pixel_centres(width, dt),
                 _composite.pixel_centres(height, dt), groups, _composite.make_consts(dt), frame.T, frame.last,
-                gcol, gdep, galp, grads)
+                gcol, gdep, galp, grads, contributions)
+        count("contributions", int(contributions.sum()))
         with stage("unpack"):
             return _composite.unpack_grads(grads, frame.order[:rows], n)

@@ -28,11 +28,6 @@ def record_stages() -> Iterator[dict[str, list[float]]]:
         _active = outer
 
 
-def recording() -> bool:
-    """Whether a recorder is open (so that counts worth a pass over an image are taken)."""
-    return _active is not None
-
-
 def count(name: str, value: float) -> None:
     """Add ``value`` to the counter ``name`` when a recorder is open."""
     if _active is not None:
