@@ -144,25 +144,43 @@ def lane_pixel(tx, ty, sb, lane):
             ty * TILE + (sb // SUBS_PER_SIDE) * SUB + lane // SUB)
 
 
-def _unpack_grads_impl(grads, order, out):
-    """out[ch, order[k]] = sum_p grads[p, k, ch]: per-group sums back to the caller's Gaussian
-    order, channel-major so each parameter's gradient is one contiguous block."""
+@njit(cache=True, inline="always")
+def _group_sum(grads, k, ch):
+    acc = grads[0, k, ch]
+    for p in range(1, grads.shape[0]):
+        acc += grads[p, k, ch]
+    return acc
+
+
+def _unpack_grads_impl(grads, order, g_means2d, g_conics, g_opacities, g_colors, g_depths, absgrad):
+    """Sum the per-group rows of grads and scatter them back to the caller's Gaussian order, one
+    row-major array per input (so autograd gets contiguous tensors) and absgrad added in place."""
     for k in prange(order.shape[0]):
         g = order[k]
-        for ch in range(N_GRAD):
-            acc = grads[0, k, ch]
-            for p in range(1, grads.shape[0]):
-                acc += grads[p, k, ch]
-            out[ch, g] = acc
+        g_means2d[g, 0] = _group_sum(grads, k, G_MX)
+        g_means2d[g, 1] = _group_sum(grads, k, G_MY)
+        g_conics[g, 0] = _group_sum(grads, k, G_A)
+        g_conics[g, 1] = _group_sum(grads, k, G_B)
+        g_conics[g, 2] = _group_sum(grads, k, G_C)
+        g_opacities[g] = _group_sum(grads, k, G_O)
+        g_colors[g, 0] = _group_sum(grads, k, G_R)
+        g_colors[g, 1] = _group_sum(grads, k, G_G)
+        g_colors[g, 2] = _group_sum(grads, k, G_BL)
+        g_depths[g] = _group_sum(grads, k, G_Z)
+        absgrad[g, 0] += _group_sum(grads, k, G_ABS_MX)
+        absgrad[g, 1] += _group_sum(grads, k, G_ABS_MY)
 
 
 _unpack_grads, _unpack_grads_serial = parallel_and_serial(_unpack_grads_impl)
 
 
-def unpack_grads(grads: np.ndarray, order: np.ndarray, n: int) -> np.ndarray:
-    """(N_GRAD, n) per-Gaussian gradients (zeros for culled ones) from the per-group buffer."""
-    out = np.zeros((N_GRAD, n), grads.dtype)
-    (_unpack_grads if grads.dtype == np.float32 else _unpack_grads_serial)(grads, order, out)
+def unpack_grads(grads: np.ndarray, order: np.ndarray, n: int, absgrad: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Per-Gaussian gradients (zeros for rows without any) w.r.t. means2d (n,2), conics (n,3),
+    opacities (n,), colours (n,3), depths (n,) from the per-group buffer; adds |dL/dmeans2d|
+    into absgrad (n,2)."""
+    dt = grads.dtype
+    out = (np.zeros((n, 2), dt), np.zeros((n, 3), dt), np.zeros(n, dt), np.zeros((n, 3), dt), np.zeros(n, dt))
+    (_unpack_grads if dt == np.float32 else _unpack_grads_serial)(grads, order, *out, absgrad)
     return out
 
 

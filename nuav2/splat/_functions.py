@@ -104,12 +104,9 @@ class CompositeFn(torch.autograd.Function):
         gcol = _np(g_color, T.shape + (3,), T.dtype)
         gdep = _np(g_depth, T.shape, T.dtype)
         galp = _np(g_alpha, T.shape, T.dtype)
-        g = torch.from_numpy(composite_backward(frame, gcol, gdep, galp, ctx.n))     # (12, N) channel-major
-        C = _composite
-        if ctx.absgrad_out is not None:
-            ctx.absgrad_out += g[C.G_ABS_MX:C.G_ABS_MY + 1].T
-        return (g[C.G_MX:C.G_MY + 1].T, g[C.G_A:C.G_C + 1].T, g[C.G_O], g[C.G_R:C.G_BL + 1].T, g[C.G_Z],
-                None, None, None, None)
+        absgrad = np.zeros((ctx.n, 2), T.dtype) if ctx.absgrad_out is None else ctx.absgrad_out.numpy()
+        grads = composite_backward(frame, gcol, gdep, galp, ctx.n, absgrad)
+        return tuple(torch.from_numpy(g) for g in grads) + (None, None, None, None)
 
 
 @dataclass
@@ -175,9 +172,10 @@ def composite_forward(m2: np.ndarray, con: np.ndarray, op: np.ndarray, col: np.n
     return Frame(packed, order, slab_offsets, ids, color, depth, T, last, work)
 
 
-def composite_backward(frame: Frame, gcol: np.ndarray, gdep: np.ndarray, galp: np.ndarray,
-                       n: int) -> np.ndarray:
-    """(12, n) per-Gaussian gradients of the packed inputs, channel-major, in the caller's order.
+def composite_backward(frame: Frame, gcol: np.ndarray, gdep: np.ndarray, galp: np.ndarray, n: int,
+                       absgrad: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Gradients w.r.t. means2d, conics, opacities, colours and depths of the n Gaussians, in the
+    caller's order; |dL/dmeans2d| summed over pixels is added into absgrad (n, 2).
 
     Only rows up to the furthest last contributor can receive gradient, so the per-group
     buffers and their reduction stop there (behind an opaque foreground that is a short prefix).
@@ -198,4 +196,4 @@ def composite_backward(frame: Frame, gcol: np.ndarray, gdep: np.ndarray, galp: n
                 gcol, gdep, galp, grads, contributions)
         count("contributions", int(contributions.sum()))
         with stage("unpack"):
-            return _composite.unpack_grads(grads, frame.order[:rows], n)
+            return _composite.unpack_grads(grads, frame.order[:rows], n, absgrad)

@@ -113,8 +113,9 @@ def background_rows(background, n_cams: int, dtype: torch.dtype, device) -> torc
     raise ValueError(f"background must be (3,) or ({n_cams},3), got {tuple(bg.shape)}")
 
 
-def finite_colors(colors: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """(colours with the rows of non-finite Gaussians zeroed, (N,) bool mask of those Gaussians).
+def finite_colors(colors: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
+    """(colours with the rows of non-finite Gaussians zeroed, (N,) bool mask of those Gaussians,
+    None when there is none: a finite sum proves it with one pass).
 
     A Gaussian whose colour (or any SH coefficient) is NaN or inf is culled by every backend,
     like one with a non-finite mean, scale, rotation or opacity: it would otherwise turn every
@@ -122,22 +123,23 @@ def finite_colors(colors: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     ``torch.where``) keeps NaN out of the backward graph, so the culled Gaussian's colour
     gradient is exactly zero.
     """
+    if bool(torch.isfinite(colors.detach().sum())):
+        return colors, None
     bad = ~torch.isfinite(colors.detach()).flatten(1).all(-1)
     if not bad.any():
-        return colors, bad
+        return colors, None
     mask = bad.reshape((-1,) + (1,) * (colors.ndim - 1))
     return torch.where(mask, torch.zeros_like(colors), colors), bad
 
 
-def camera_colors(colors: torch.Tensor, bad: torch.Tensor, sh_degree: int | None, means: torch.Tensor,
-                  centre_world: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
-    """RGB per Gaussian for one camera (SH evaluated towards it) and the Gaussians to cull there:
-    ``bad`` plus any whose SH colour overflowed (zeroed too)."""
+def camera_colors(colors: torch.Tensor, bad: torch.Tensor | None, sh_degree: int | None, means: torch.Tensor,
+                  centre_world: np.ndarray) -> tuple[torch.Tensor, torch.Tensor | None]:
+    """RGB per Gaussian for one camera (SH evaluated towards it) and the Gaussians to cull there
+    (None for none): ``bad`` plus any whose SH colour overflowed (zeroed too)."""
     if sh_degree is None:
         return colors, bad
     rgb = sh_to_rgb(colors, means, centre_world, sh_degree)
-    overflow = ~torch.isfinite(rgb.detach()).all(-1)
-    if overflow.any():
-        rgb = torch.where(overflow[:, None], torch.zeros_like(rgb), rgb)
-        bad = bad | overflow
-    return rgb, bad
+    rgb, overflow = finite_colors(rgb)
+    if overflow is None:
+        return rgb, bad
+    return rgb, overflow if bad is None else bad | overflow

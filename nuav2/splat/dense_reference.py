@@ -136,8 +136,9 @@ def rasterize_dense(means, quats, log_scales, opacity_logits, colors, world_T_ca
             means, quats, log_scales, opacities, cams.cam_T_world[ci], cams.K[ci], width, height, near, far,
             radius_clip)
         col, bad = camera_colors(colors, bad_colors, deg, means, cams.centres_world[ci])
-        visible = visible & ~bad
-        radii = torch.where(visible[:, None], radii, torch.zeros_like(radii))
+        if bad is not None:
+            visible = visible & ~bad
+            radii = torch.where(visible[:, None], radii, torch.zeros_like(radii))
         idx = torch.nonzero(visible).flatten()
         if len(idx) * width * height > max_elements:
             raise MemoryError(f"dense reference: {len(idx)} Gaussians x {width}x{height} px exceeds "

@@ -47,7 +47,9 @@ def rasterize_gsplat(means, quats, log_scales, opacity_logits, colors, cams: Cam
     viewmats = torch.as_tensor(cams.cam_T_world, dtype=dtype, device=device)
     Ks = torch.as_tensor(cams.K, dtype=dtype, device=device)
     colors, bad_colors = finite_colors(colors)          # culled as on the CPU: opacity 0 < 1/255
-    opacities = torch.where(bad_colors, torch.zeros_like(opacity_logits), torch.sigmoid(opacity_logits))
+    opacities = torch.sigmoid(opacity_logits)
+    if bad_colors is not None:
+        opacities = torch.where(bad_colors, torch.zeros_like(opacities), opacities)
     renders, alphas, meta = gsplat.rasterization(
         means, unit_quats, scales, opacities, colors, viewmats, Ks, width, height,
         near_plane=near, far_plane=far, radius_clip=radius_clip, eps2d=EPS2D, sh_degree=sh_degree,

@@ -114,16 +114,16 @@ def _rasterize_cpu(means, quats, log_scales, opacity_logits, colors, cams, width
     absgrad = torch.zeros(n_cams, len(means), 2, dtype=dtype)
     means2d.absgrad = absgrad
     radii_np = radii.numpy()
-    bg = background_rows(background, n_cams, dtype, means.device)
     colors, bad_colors = finite_colors(colors)
+    bg = None if background is None else background_rows(background, n_cams, dtype, means.device)
     rgbs, alphas, exp_depths = [], [], []
     for c in range(n_cams):
         col, bad = camera_colors(colors, bad_colors, sh_degree, means, cams.centres_world[c])
-        if bad.any():
+        if bad is not None:
             radii_np[c][bad.numpy()] = 0          # culled: also skipped by the projection backward
         color_sum, depth_sum, alpha = CompositeFn.apply(
             means2d[c], conics[c], opacities, col, depths[c], radii_np[c], width, height, absgrad[c])
-        rgbs.append(color_sum + (1.0 - alpha)[..., None] * bg[c])
+        rgbs.append(color_sum if bg is None else color_sum + (1.0 - alpha)[..., None] * bg[c])
         alphas.append(alpha)
         exp_depths.append(depth_sum / alpha.clamp_min(ALPHA_FLOOR_DEPTH))
     return _finish(rgbs, alphas, exp_depths, cams.batched, dict(
