@@ -101,21 +101,23 @@ def _gsplat(params, scene: StreetScene):
     return rgb, alpha, depth
 
 
-def _step(render: Callable, scene: StreetScene, weights) -> tuple[torch.Tensor, ...]:
-    """One render plus the backward of a weighted loss; returns the detached images."""
-    params = scene.tensors(requires_grad=True)
+def _render_and_backward(render: Callable, params: list[torch.Tensor], scene: StreetScene, weights):
     rgb, alpha, depth = render(params, scene)
     wr, wa, wd = weights
     ((rgb * wr).sum() + (alpha * wa).sum() + 0.01 * (depth * wd).sum()).backward()
-    if any(p.grad is None or not torch.isfinite(p.grad).all() for p in params):
-        raise FloatingPointError("non-finite gradient in the benchmark scene")
     return rgb.detach(), alpha.detach(), depth.detach()
 
 
-def _timed(fn: Callable) -> tuple[float, float, object]:
+def _step(render: Callable, scene: StreetScene, weights) -> tuple[float, float, tuple[torch.Tensor, ...]]:
+    """One render plus the backward of a weighted loss on fresh leaf tensors: (wall s, CPU s,
+    detached images). Only the render and the backward are timed."""
+    params = scene.tensors(requires_grad=True)
     c0, w0 = time.process_time(), time.perf_counter()
-    result = fn()
-    return time.perf_counter() - w0, time.process_time() - c0, result
+    images = _render_and_backward(render, params, scene, weights)
+    wall, cpu = time.perf_counter() - w0, time.process_time() - c0
+    if any(p.grad is None or not torch.isfinite(p.grad).all() for p in params):
+        raise FloatingPointError("non-finite gradient in the benchmark scene")
+    return wall, cpu, images
 
 
 def _summary(walls: list[float], cpus: list[float]) -> dict:
@@ -147,7 +149,7 @@ def bench_case(scene_name: str, w: int, h: int, n: int, repeats: int, threads: i
     load = [round(os.getloadavg()[0], 2)]
     _set_threads(threads)
     with record_stages() as counts:
-        ours_images = _step(_ours, scene, weights)                 # warm-up; counts of one step
+        ours_images = _step(_ours, scene, weights)[2]              # warm-up; counts of one step
     candidates = {"ours_1_thread": (1, _ours), f"ours_{threads}_threads": (threads, _ours)}
     case: dict = {"scene": scene_name, "w": w, "h": h, "n": n,
                   "tile_pairs": int(counts["tile_pairs"][0]), "depth_slabs": int(counts["depth_slabs"][0]),
@@ -157,7 +159,7 @@ def bench_case(scene_name: str, w: int, h: int, n: int, repeats: int, threads: i
     if reference:
         try:
             _set_threads(threads)
-            ref_images = _step(_gsplat, scene, weights)
+            ref_images = _step(_gsplat, scene, weights)[2]
             candidates["gsplat_torch"] = (threads, _gsplat)
             case["vs_gsplat"] = _image_diff(ours_images, ref_images)
         except ReferenceTooLarge as exc:
@@ -172,7 +174,7 @@ def bench_case(scene_name: str, w: int, h: int, n: int, repeats: int, threads: i
                 continue
             _set_threads(n_threads)
             with record_stages() as stages:
-                wall, cpu, _ = _timed(lambda render=render: _step(render, scene, weights))
+                wall, cpu, _ = _step(render, scene, weights)
             times[name][0].append(wall)
             times[name][1].append(cpu)
             if n_threads == threads and render is _ours and cpu <= min(times[name][1]):
