@@ -4,8 +4,13 @@ The Gaussians are depth-sorted once (one sort of N keys) and then scattered into
 stable counting sort, so every tile list comes out depth-ordered without sorting N*tiles
 keys. A Gaussian enters a tile only if its ellipse {sigma <= ln(255 o) + margin} reaches one
 of the tile's pixel centres: per tile row the exact x-extent of the ellipse within the row
-is computed, which drops the empty corners of the rectangular bounding box that elongated
-street-level splats produce.
+is computed, which drops the empty corners of the rectangular bounding box.
+
+Binning runs slab by slab in depth order (a few hundred nearest rows first, then slabs
+growing 4x), interleaved with compositing: a slab is binned only into tiles that still have a
+live pixel. Behind near, opaque splats almost every tile has stopped after the first slab, so
+the pairs that could never contribute are never written (8.4 M -> 0.14 M on the benchmark's
+near-splat scene at 480x270, `nuav2 bench raster`, field tile_pairs).
 """
 
 from __future__ import annotations
