@@ -29,7 +29,7 @@ import nuav2.splat
 from nuav2.bench.near_splat_scene import make_near_splat_scene
 from nuav2.bench.raster_roofline import evaluations_per_second
 from nuav2.bench.street_scene import StreetScene, make_street_scene
-from nuav2.splat import rasterize
+from nuav2.splat import _binning, _composite, rasterize
 from nuav2.splat._stages import record_stages
 from nuav2.splat.gsplat_reference import ReferenceTooLarge, gsplat_installed, rasterize_gsplat_torch
 
@@ -101,6 +101,21 @@ def _gsplat(params, scene: StreetScene):
     return rgb, alpha, depth
 
 
+def _pairs_without_slabs(scene: StreetScene) -> int:
+    """Tile-Gaussian pairs if every visible Gaussian were binned at once (no occlusion culling):
+    what the slab-by-slab binning avoids writing."""
+    with torch.no_grad():
+        out = rasterize(*scene.tensors(), scene.world_T_cam, scene.K, scene.width, scene.height, near=NEAR_M)
+    m2, conics = out.meta["means2d"][0].numpy(), out.meta["conics"][0].numpy()
+    depths, radii = out.meta["depths"][0].numpy(), out.meta["radii"][0].numpy()
+    order = _binning.depth_order(depths, radii)
+    packed = np.empty((len(order), _composite.PACKED_WIDTH), m2.dtype)
+    opacities = torch.sigmoid(scene.opacity_logits).numpy()
+    _composite.pack_rows(m2, conics, opacities, scene.colors.numpy(), depths, order, packed, 0, len(order))
+    alive = np.ones(_binning.n_tiles(scene.width, scene.height), np.uint8)
+    return len(_binning.bin_slab(packed, 0, len(order), scene.width, scene.height, alive, 1)[1])
+
+
 def _render_and_backward(render: Callable, params: list[torch.Tensor], scene: StreetScene, weights):
     rgb, alpha, depth = render(params, scene)
     wr, wa, wd = weights
@@ -152,7 +167,9 @@ def bench_case(scene_name: str, w: int, h: int, n: int, repeats: int, threads: i
         ours_images = _step(_ours, scene, weights)[2]              # warm-up; counts of one step
     candidates = {"ours_1_thread": (1, _ours), f"ours_{threads}_threads": (threads, _ours)}
     case: dict = {"scene": scene_name, "w": w, "h": h, "n": n,
-                  "tile_pairs": int(counts["tile_pairs"][0]), "depth_slabs": int(counts["depth_slabs"][0]),
+                  "tile_pairs": int(counts["tile_pairs"][0]),
+                  "tile_pairs_without_slabs": _pairs_without_slabs(scene),
+                  "depth_slabs": int(counts["depth_slabs"][0]),
                   "contributions": int(counts["contributions"][0])}
     case["contributions_per_pixel"] = round(case["contributions"] / (w * h), 2)
     ref_note = None
