@@ -16,7 +16,6 @@ import ctypes
 import gc
 import os
 import platform
-import sys
 import threading
 import time
 from collections.abc import Callable, Iterable
@@ -222,9 +221,9 @@ def bench_case(scene_name: str, w: int, h: int, n: int, repeats: int, threads: i
 
 def run_raster_bench(cases: Iterable[tuple[str, int, int, int]], repeats: int = 5, reference: bool = True,
                      progress: bool = True) -> dict:
-    """Benchmark every (scene, w, h, n) case; returns the JSON-ready report (a progress bar only
-    on a terminal)."""
-    from tqdm import tqdm
+    """Benchmark every (scene, w, h, n) case; returns the JSON-ready report (a bar on a terminal,
+    a log line every few seconds elsewhere)."""
+    from nuav2.progress import progress_bar
 
     cases = list(cases)
     threads = numba.get_num_threads()
@@ -235,7 +234,7 @@ def run_raster_bench(cases: Iterable[tuple[str, int, int, int]], repeats: int = 
     _step(_ours, warm, _loss_weights(48, 64, 0))                   # compile outside the cases
     jit_s = time.perf_counter() - t0
     rates = {"1": evaluations_per_second(1), str(threads): evaluations_per_second(threads)}
-    bar = tqdm(cases, desc="bench raster", disable=not (progress and sys.stderr.isatty()))
+    bar = progress_bar(cases, desc="bench raster", disable=not progress)
     results = [bench_case(s, w, h, n, repeats, threads, reference, rates[str(threads)]) for s, w, h, n in bar]
     return {"bench": "raster", "interleaved": True,
             "step": "forward + backward of sum(w_rgb*rgb) + sum(w_a*alpha) + 0.01*sum(w_d*depth)",
