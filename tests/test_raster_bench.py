@@ -25,7 +25,7 @@ def test_bench_raster_cli_reports_every_figure(capsys):
     assert report["bench"] == "raster" and report["interleaved"] is True
     threads = report["threads"]
     assert threads >= 1 and report["repeats"] == 1
-    assert all(_finite_non_negative(v) and v > 0 for v in report["roofline_evals_per_s"].values())
+    assert report["roofline_evals_per_s"] > 0 and report["roofline_evals_per_cpu_s"] > 0
     assert len(report["load_avg_1m"]) == 2
     assert {c["scene"] for c in report["cases"]} == {"street", "near_splats"}
     for case in report["cases"]:
@@ -40,7 +40,8 @@ def test_bench_raster_cli_reports_every_figure(capsys):
                                           "composite_bwd", "projection_bwd"}
         assert all(_finite_non_negative(v["wall"]) and _finite_non_negative(v["cpu"])
                    for v in case["stages_ms"].values())
-        for key in ("speedup_threads_vs_1", "ns_per_contribution", "floor_s", "roofline_fraction"):
+        for key in ("speedup_threads_vs_1", "ns_per_contribution", "cpu_ns_per_contribution", "floor_s",
+                    "roofline_fraction", "floor_cpu_s", "roofline_fraction_cpu"):
             assert _finite_non_negative(case[key]), key
         assert len(case["load_avg_1m"]) == 2
         if gsplat_installed():
