@@ -40,7 +40,9 @@ def _tile_range(m, e, n_tiles_axis, size):
 
 @njit(cache=True, inline="always")
 def _row_span(mx, my, a, b, c, thresh, ex, ey, ty, tx0, tx1, width, height):
-    """Tiles [lo, hi) of tile row ty that the ellipse {sigma <= thresh} reaches (exact)."""
+    """Tiles [lo, hi), within [tx0, tx1), of tile row ty that the ellipse {sigma <= thresh} reaches."""
+    if tx1 <= tx0:
+        return 0, 0
     x_lo, x_hi = band_x_extent(ty * TILE + 0.5 - my, min((ty + 1) * TILE, height) - 0.5 - my, a, b, c,
                                thresh, ex, ey)
     if x_lo > x_hi:
@@ -95,11 +97,8 @@ def bin_rows(packed, base, lo, hi, width, height, tile_alive, n_groups):
             tx0, tx1 = _tile_range(mx, ex, tiles_x, width)
             ty0, ty1 = _tile_range(my, ey, tiles_y, height)
             for ty in range(ty0, ty1):
-                a0 = max(tx0, live_lo[ty])
-                a1 = min(tx1, live_hi[ty])
-                if a1 <= a0:
-                    continue
-                s0, s1 = _row_span(mx, my, a, b, c, thresh, ex, ey, ty, a0, a1, width, height)
+                s0, s1 = _row_span(mx, my, a, b, c, thresh, ex, ey, ty, max(tx0, live_lo[ty]),
+                                   min(tx1, live_hi[ty]), width, height)
                 for tx in range(s0, s1):
                     t = ty * tiles_x + tx
                     counts[p, t] += tile_alive[t]
@@ -119,11 +118,8 @@ def bin_rows(packed, base, lo, hi, width, height, tile_alive, n_groups):
             tx0, tx1 = _tile_range(mx, ex, tiles_x, width)
             ty0, ty1 = _tile_range(my, ey, tiles_y, height)
             for ty in range(ty0, ty1):
-                a0 = max(tx0, live_lo[ty])
-                a1 = min(tx1, live_hi[ty])
-                if a1 <= a0:
-                    continue
-                s0, s1 = _row_span(mx, my, a, b, c, thresh, ex, ey, ty, a0, a1, width, height)
+                s0, s1 = _row_span(mx, my, a, b, c, thresh, ex, ey, ty, max(tx0, live_lo[ty]),
+                                   min(tx1, live_hi[ty]), width, height)
                 for tx in range(s0, s1):
                     t = ty * tiles_x + tx
                     if tile_alive[t] != 0:
