@@ -52,3 +52,10 @@ def test_bench_raster_cli_reports_every_figure(capsys):
             assert _finite_non_negative(case["speedup_vs_gsplat_torch"])
         else:
             assert "skipped" in case["gsplat_torch"]
+
+
+def test_cli_scene_names_are_the_bench_scenes():
+    from nuav2.bench.raster import SCENES
+    from nuav2.commands.bench_raster import SCENES as CLI_SCENES
+
+    assert set(CLI_SCENES) == set(SCENES)
