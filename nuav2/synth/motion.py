@@ -146,12 +146,13 @@ def ego_motion(
     v_cruise: float,
     varied: bool,
     lane_change: bool,
+    manoeuvre: str | None = None,
 ) -> tuple[PathMotion, str]:
     """The ego's motion and the name of its manoeuvre.
 
     ``varied`` (the layouts factor): turn left or right, stop and go at a stop bar, or change lanes,
-    as the layout allows; otherwise cruise straight on, drifting one lane right mid-log when
-    ``lane_change`` (the original ego's behaviour)."""
+    as the layout allows (``manoeuvre`` forces one); otherwise cruise straight on, drifting one lane
+    right mid-log when ``lane_change`` (the original ego's behaviour)."""
     juncs = junction_lanes(layout)
     straight_inner = [ln for ln in juncs if turn_kind(ln) == "straight" and ln.right_neighbor_id is not None]
     options = ["lane_change"]
@@ -161,7 +162,8 @@ def ego_motion(
         options += ["stop"]
     else:
         options += ["slow"]
-    manoeuvre = options[int(rng.integers(len(options)))] if varied else "cruise"
+    drawn = options[int(rng.integers(len(options)))] if varied else "cruise"
+    manoeuvre = manoeuvre or drawn
     if juncs and manoeuvre in ("left", "right"):
         cands = [ln for ln in juncs if turn_kind(ln) == manoeuvre]
         if not cands:
