@@ -21,10 +21,10 @@ import cv2
 import numpy as np
 import pyarrow as pa
 import pyarrow.feather as feather
-from tqdm import tqdm
 
 from nuav2.atomic import atomic_directory
 from nuav2.geometry import T_inverse, T_to_quat_trans
+from nuav2.progress import progress_bar
 from nuav2.synth.camera_effects import EFFECTS_JPEG_QUALITY, CameraEffects
 from nuav2.synth.config import SynthConfig
 from nuav2.synth.labels import label_errors
@@ -145,8 +145,8 @@ def write_log(world: SyntheticWorld, log_dir: Path, split: str = "train", progre
     rows = []
     t_start = time.perf_counter()
     n_points = 0
-    for k in tqdm(range(len(tl.sweeps_ns)), desc=f"synth {world.log_id[:8]}", unit="frame",
-                  disable=not progress):
+    for k in progress_bar(range(len(tl.sweeps_ns)), desc=f"synth {world.log_id[:8]}", unit="frame",
+                          disable=not progress):
         ts = int(tl.sweeps_ns[k])
         ret = cast_sweep(world, ts)
         n_points += len(ret.offset_ns)
