@@ -15,6 +15,7 @@ import numpy as np
 
 from nuav2.geometry import F64
 from nuav2.synth import polyline as pl
+from nuav2.synth.layouts import StreetPlan
 from nuav2.synth.road import LANE_W, LaneSpec, RoadLayout
 
 TABLE_HZ = 100.0
@@ -140,7 +141,7 @@ def lane_change_offset(t: F64, duration: float, width: float, change_s: float = 
 
 def ego_motion(
     layout: RoadLayout,
-    plan,
+    plan: StreetPlan,
     rng: np.random.Generator,
     duration: float,
     v_cruise: float,

@@ -9,6 +9,8 @@ lanes the ego does not use. Everything draws from the random stream it is given.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 import shapely
 from shapely.geometry import Point, Polygon
@@ -18,7 +20,7 @@ from nuav2.synth import polyline as pl
 from nuav2.synth.boxes import KIND_BUILDING, KIND_PEDESTRIAN, KIND_VEHICLE, BoxSet
 from nuav2.synth.config import SynthConfig
 from nuav2.synth.layouts import SIDEWALK_W, StreetPlan
-from nuav2.synth.legacy import CAR_COLORS, FACADE_COLORS, SHIRT_COLORS, ActorTrack, car, uuid4
+from nuav2.synth.legacy import CAR_COLORS, FACADE_COLORS, SHIRT_COLORS, ActorTrack, EgoTrajectory, car, uuid4
 from nuav2.synth.materials import MAT_FACADE, REFLECTIVITY
 from nuav2.synth.motion import PathMotion, build_route, junction_lanes, lane_centre
 from nuav2.synth.road import RoadLayout
@@ -94,7 +96,7 @@ def _footprint_at(a: ActorTrack, t: float) -> Polygon:
     return _footprint(np.asarray(xy), yaw, a.size_lwh[0], a.size_lwh[1])
 
 
-def ego_footprints(ego, duration: float) -> list[Polygon]:
+def ego_footprints(ego: PathMotion | EgoTrajectory, duration: float) -> list[Polygon]:
     """The ego vehicle's footprint (4.9 x 1.9 m around a point 1.4 m ahead of its rear axle) at
     :func:`check_times`."""
     out = []
@@ -113,7 +115,7 @@ def check_times(duration: float) -> np.ndarray:
     return np.linspace(-0.05, duration + 0.05, max(5, int(duration * 4) + 1))
 
 
-def clear_of(cand: ActorTrack, others, ego_box: list[Polygon], duration: float) -> bool:
+def clear_of(cand: ActorTrack, others: Sequence[ActorTrack], ego_box: list[Polygon], duration: float) -> bool:
     """True if ``cand`` keeps ``CLEARANCE_M`` from the ego and every other actor over the log."""
     for k, t in enumerate(check_times(duration)):
         f = _footprint_at(cand, t).buffer(CLEARANCE_M)
@@ -398,7 +400,7 @@ def place_cyclists(
     rng: np.random.Generator,
     cfg: SynthConfig,
     layout: RoadLayout,
-    ego,
+    ego: PathMotion | EgoTrajectory,
     duration: float,
     actors: tuple[ActorTrack, ...],
 ) -> tuple[ActorTrack, ...]:
