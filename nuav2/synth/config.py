@@ -103,7 +103,10 @@ class SynthConfig:
 
     @classmethod
     def for_preset(cls, name: str, **overrides) -> SynthConfig:
-        """The config of preset ``name`` (``PRESETS``), with any field overridden."""
+        """The config of preset ``name`` (``PRESETS``), with any field overridden.
+
+        Use this (not ``dataclasses.replace(cfg, preset=...)``) to change preset: a built config's
+        factor fields are already resolved, so replacing ``preset`` alone keeps the old factors."""
         if name not in PRESETS:
             raise ValueError(f"preset must be one of {PRESETS}, got {name!r}")
         return cls(preset=name, **overrides)

@@ -15,6 +15,7 @@ import numpy as np
 
 from nuav2.geometry import F64
 from nuav2.synth import polyline as pl
+from nuav2.synth.layouts import StreetPlan
 from nuav2.synth.road import LANE_W, LaneSpec, RoadLayout
 
 TABLE_HZ = 100.0
@@ -140,18 +141,19 @@ def lane_change_offset(t: F64, duration: float, width: float, change_s: float = 
 
 def ego_motion(
     layout: RoadLayout,
-    plan,
+    plan: StreetPlan,
     rng: np.random.Generator,
     duration: float,
     v_cruise: float,
     varied: bool,
     lane_change: bool,
+    manoeuvre: str | None = None,
 ) -> tuple[PathMotion, str]:
     """The ego's motion and the name of its manoeuvre.
 
     ``varied`` (the layouts factor): turn left or right, stop and go at a stop bar, or change lanes,
-    as the layout allows; otherwise cruise straight on, drifting one lane right mid-log when
-    ``lane_change`` (the original ego's behaviour)."""
+    as the layout allows (``manoeuvre`` forces one); otherwise cruise straight on, drifting one lane
+    right mid-log when ``lane_change`` (the original ego's behaviour)."""
     juncs = junction_lanes(layout)
     straight_inner = [ln for ln in juncs if turn_kind(ln) == "straight" and ln.right_neighbor_id is not None]
     options = ["lane_change"]
@@ -161,7 +163,8 @@ def ego_motion(
         options += ["stop"]
     else:
         options += ["slow"]
-    manoeuvre = options[int(rng.integers(len(options)))] if varied else "cruise"
+    drawn = options[int(rng.integers(len(options)))] if varied else "cruise"
+    manoeuvre = manoeuvre or drawn
     if juncs and manoeuvre in ("left", "right"):
         cands = [ln for ln in juncs if turn_kind(ln) == manoeuvre]
         if not cands:

@@ -9,6 +9,8 @@ lanes the ego does not use. Everything draws from the random stream it is given.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 import shapely
 from shapely.geometry import Point, Polygon
@@ -18,7 +20,7 @@ from nuav2.synth import polyline as pl
 from nuav2.synth.boxes import KIND_BUILDING, KIND_PEDESTRIAN, KIND_VEHICLE, BoxSet
 from nuav2.synth.config import SynthConfig
 from nuav2.synth.layouts import SIDEWALK_W, StreetPlan
-from nuav2.synth.legacy import CAR_COLORS, FACADE_COLORS, SHIRT_COLORS, ActorTrack, car, uuid4
+from nuav2.synth.legacy import CAR_COLORS, FACADE_COLORS, SHIRT_COLORS, ActorTrack, EgoTrajectory, car, uuid4
 from nuav2.synth.materials import MAT_FACADE, REFLECTIVITY
 from nuav2.synth.motion import PathMotion, build_route, junction_lanes, lane_centre
 from nuav2.synth.road import RoadLayout
@@ -36,6 +38,8 @@ from nuav2.synth.shapes import (
 from nuav2.synth.terrain import Terrain
 
 PARK_SPACING_M = 6.5
+MOVING_TRIES = 4  # draws per moving actor before giving up on one that keeps clear of the others
+CLEARANCE_M = 0.4
 MOVING_CLASSES = (("car", 0.45), ("suv", 0.25), ("bus", 0.15), ("truck", 0.15))
 PARKED_CLASSES = (("car", 0.65), ("suv", 0.35))
 SIGN_COLORS = np.array([[200, 30, 35], [235, 235, 235], [240, 200, 40], [30, 80, 170]], np.float32)
@@ -85,6 +89,39 @@ def _constant(path: F64, s_mid: float, speed: float, duration: float, lat: float
     t = np.arange(-0.2, duration + 1.0 + 1e-9, 0.05)
     s = s_mid + speed * (t - duration / 2)
     return PathMotion(path, t, s, np.full_like(t, lat))
+
+
+def _footprint_at(a: ActorTrack, t: float) -> Polygon:
+    xy, yaw = a.xy_yaw_at(t)
+    return _footprint(np.asarray(xy), yaw, a.size_lwh[0], a.size_lwh[1])
+
+
+def ego_footprints(ego: PathMotion | EgoTrajectory, duration: float) -> list[Polygon]:
+    """The ego vehicle's footprint (4.9 x 1.9 m around a point 1.4 m ahead of its rear axle) at
+    :func:`check_times`."""
+    out = []
+    for t in check_times(duration):
+        if isinstance(ego, PathMotion):
+            xy, yaw = ego.xy_yaw(np.array([t]))
+            xy, yaw = xy[0], float(yaw[0])
+        else:
+            x, y, yaw = ego.xy_yaw(np.array([t]))
+            xy, yaw = np.array([x[0], y[0]]), float(yaw[0])
+        out.append(_footprint(xy + 1.4 * np.array([np.cos(yaw), np.sin(yaw)]), yaw, 4.9, 1.9))
+    return out
+
+
+def check_times(duration: float) -> np.ndarray:
+    return np.linspace(-0.05, duration + 0.05, max(5, int(duration * 4) + 1))
+
+
+def clear_of(cand: ActorTrack, others: Sequence[ActorTrack], ego_box: list[Polygon], duration: float) -> bool:
+    """True if ``cand`` keeps ``CLEARANCE_M`` from the ego and every other actor over the log."""
+    for k, t in enumerate(check_times(duration)):
+        f = _footprint_at(cand, t).buffer(CLEARANCE_M)
+        if f.intersects(ego_box[k]) or any(f.intersects(_footprint_at(o, t)) for o in others):
+            return False
+    return True
 
 
 def dress_legacy_actors(actors: tuple[ActorTrack, ...], rng: np.random.Generator) -> tuple[ActorTrack, ...]:
@@ -281,13 +318,17 @@ def place_actors(
                     a.track_uuid, category, a.kind, size, a.color, a.start_xy, a.heading, 0.0, body
                 )
             actors.append(a)
+    n_parked = len(actors)
     # Moving: lead on the ego's route, oncoming, leaving the junction (turning or not).
     juncs = junction_lanes(layout)
     near = _near_lanes(layout, p_mid, 12.0)
     oncoming = [x for x in near if x[1] @ f_mid < -0.5]
     ego_s_mid = float(np.interp(duration / 2, ego.t, ego.s))
-    for j in range(cfg.n_moving):
-        role, rank = ("lead", "oncoming", "leaving")[j % 3], j // 3
+    ego_box = ego_footprints(ego, duration)
+    for j in range(cfg.n_moving * MOVING_TRIES):
+        if len(actors) - n_parked == cfg.n_moving:
+            break
+        role, rank = ("lead", "oncoming", "leaving")[(j // MOVING_TRIES) % 3], j // (3 * MOVING_TRIES)
         color = CAR_COLORS[rng.integers(len(CAR_COLORS))]
         body = _pick(rng, MOVING_CLASSES) if cfg.content else "box"
         category, size = (
@@ -316,7 +357,9 @@ def place_actors(
             path, s_near = _route_at(layout, ln.id, p_mid)
             v = float(np.max(np.gradient(ego.s, ego.t))) * rng.uniform(1.0, 1.15)  # stays ahead of the ego
             motion = _constant(path, s_near + rng.uniform(20.0, 45.0), v, duration)
-        actors.append(_moving(uuid4(rng), category, KIND_VEHICLE, size, color, motion, body))
+        cand = _moving(uuid4(rng), category, KIND_VEHICLE, size, color, motion, body)
+        if clear_of(cand, actors, ego_box, duration):
+            actors.append(cand)
     # Pedestrians: along the sidewalks nearest the ego.
     lines = []
     for road in plan.roads:
@@ -357,26 +400,30 @@ def place_cyclists(
     rng: np.random.Generator,
     cfg: SynthConfig,
     layout: RoadLayout,
-    ego_mid: F64,
+    ego: PathMotion | EgoTrajectory,
     duration: float,
-    first_index: int,
+    actors: tuple[ActorTrack, ...],
 ) -> tuple[ActorTrack, ...]:
-    """Cyclists near the kerb of outer lanes around the ego (opposite direction preferred)."""
+    """Cyclists near the kerb of outer lanes around the ego, clear of it and of the other actors."""
+    ego_box = ego_footprints(ego, duration)
+    mid = ego_box[len(ego_box) // 2].centroid
+    ego_mid = np.array([mid.x, mid.y])
     outer = [x for x in _near_lanes(layout, ego_mid, 25.0) if x[0].right_neighbor_id is None]
     if not outer:
         return ()
-    out = []
-    for _ in range(cfg.n_cyclists):
+    out: list[ActorTrack] = []
+    for _ in range(cfg.n_cyclists * MOVING_TRIES):
+        if len(out) == cfg.n_cyclists:
+            break
         ln = outer[int(rng.integers(len(outer)))][0]
         path, s_near = _route_at(layout, ln.id, ego_mid)
         motion = _constant(path, s_near + rng.uniform(-30.0, 30.0), rng.uniform(4.0, 6.5), duration, -1.0)
         shirt = SHIRT_COLORS[rng.integers(len(SHIRT_COLORS))]
         frame = FRAME_COLORS[rng.integers(len(FRAME_COLORS))]
-        out.append(
-            _moving(
-                uuid4(rng), "BICYCLIST", KIND_PEDESTRIAN, CYCLIST_SIZE, shirt, motion, "cyclist", accent=frame
-            )
-        )
+        cand = _moving(uuid4(rng), "BICYCLIST", KIND_PEDESTRIAN, CYCLIST_SIZE, shirt, motion, "cyclist",
+                       accent=frame)
+        if clear_of(cand, [*actors, *out], ego_box, duration):
+            out.append(cand)
     return tuple(out)
 
 
@@ -424,8 +471,9 @@ def place_furniture(
             for s in np.arange(rng.uniform(8.0, 40.0), L - 2.0, rng.uniform(35.0, 60.0)):
                 xy, yaw, _ = frame(s, half + 0.5)
                 facing = yaw + np.pi if side < 0 else yaw  # toward the traffic approaching on this side
-                color = SIGN_COLORS[rng.integers(len(SIGN_COLORS))]
-                put(sign(rng.uniform(2.1, 2.5), color, bool(rng.uniform() < 0.4)), xy, float(facing), 1.5)
+                k = int(rng.integers(len(SIGN_COLORS)))
+                shape = ("round", "square", "diamond", "square")[k] if rng.uniform() < 0.7 else "round"
+                put(sign(rng.uniform(2.1, 2.5), SIGN_COLORS[k], shape), xy, float(facing), 1.5)
             for s in np.arange(rng.uniform(3.0, 10.0), L - 2.0, rng.uniform(8.0, 13.0)):
                 if rng.uniform() < 0.3:
                     continue

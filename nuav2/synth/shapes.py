@@ -274,18 +274,17 @@ def street_light(height: float) -> SolidList:
     return out
 
 
-def sign(height: float, color: F64, round_: bool) -> SolidList:
-    """A sign post; the plate faces +x."""
+def sign(height: float, color: F64, shape: str) -> SolidList:
+    """A sign post; the plate ("round", "diamond" or "square") faces +x."""
     out = SolidList.new()
     inf = np.inf
     out.add([0, 0, height / 2], [0.035, 0.035, height / 2], MAT_METAL, METAL, radii=[0.035, 0.035, inf])
     plate = [0.015, 0.32, 0.32]
-    if round_:
-        out.add([0.05, 0, height + 0.2], plate, MAT_SIGN, color, radii=[inf, 0.32, 0.32])
+    centre = [0.05, 0, height + 0.2]
+    if shape == "round":
+        out.add(centre, plate, MAT_SIGN, color, radii=[inf, 0.32, 0.32])
     else:
-        out.add(
-            [0.05, 0, height + 0.2], plate, MAT_SIGN, color, rot=rot_x(np.pi / 4) if color[2] < 100 else None
-        )
+        out.add(centre, plate, MAT_SIGN, color, rot=rot_x(np.pi / 4) if shape == "diamond" else None)
     return out
 
 

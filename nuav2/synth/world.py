@@ -335,9 +335,7 @@ def build_world(seed: int = 0, config: SynthConfig | None = None) -> SyntheticWo
     furniture = BoxSet.empty()
     if cfg.content:
         crng = stream(seed, STREAM_CONTENT + 10)
-        ego_xy = (ego.xy_yaw(np.array([duration / 2]))[0][0] if isinstance(ego, PathMotion)
-                  else np.array([ego.x_start + ego.speed * duration / 2, ego.y_start]))
-        actors = actors + placement.place_cyclists(crng, cfg, world_layout, ego_xy, duration, len(actors))
+        actors = actors + placement.place_cyclists(crng, cfg, world_layout, ego, duration, actors)
         furniture = placement.place_furniture(crng, plan, world_layout, terrain)
         buildings = placement.style_facades(buildings, crng)
     buildings = placement.settle(buildings, terrain, sink_m=0.5)

@@ -1,0 +1,78 @@
+"""``nuav2 bench ablation --json``: what each realism factor costs warp and render mode (realism.md)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from nuav2.cli import group
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    p = group("bench", "benchmarks").add_parser(
+        "ablation",
+        help="realism ablation: the dB each synthetic-world factor costs warp and render mode",
+        description="Starting from the easy synthetic world, switches each realism factor on alone (and "
+                    "runs the medium and hard presets whole), converts each log in warp and render mode and "
+                    "scores the written images against the world's exact renders: PSNR / SSIM over the whole "
+                    "image and the ground, lane-paint offset, seconds; plus the synthetic world's speed per "
+                    "preset (see docs/realism.md).")
+    p.add_argument("--seeds", default="0,1", help="world seeds, comma-separated")
+    p.add_argument("--factors", default="all", help="factors to add one at a time (default: all)")
+    p.add_argument("--presets", default="medium,hard", help="whole presets to run too ('' for none)")
+    p.add_argument("--seconds", type=float, default=2.0, help="log length in seconds")
+    p.add_argument("--image-scale", type=float, default=0.125, help="AV2 camera resolution of the logs")
+    p.add_argument("--rig", default="nuscenes", help="target rig name or JSON path")
+    p.add_argument("--scale", type=float, default=0.125, help="target rig resolution factor")
+    p.add_argument("--recon-preset", choices=["default", "fast"], default="fast",
+                   help="reconstruction settings for render mode (default: the fastest)")
+    p.add_argument("--modes", default="warp,render", help="conversion modes to score")
+    p.add_argument("--speed-seconds", type=float, default=2.0,
+                   help="log length of the synth speed measurement per preset (0: skip)")
+    p.add_argument("--pictures", type=Path, default=None,
+                   help="write realism_<preset>.png (source | truth | warp | render) into this directory")
+    p.add_argument("--work-dir", type=Path, default=None, help="keep the logs and databases here")
+    p.add_argument("--out", type=Path, default=None, help="also write the JSON here")
+    p.add_argument("--markdown", type=Path, default=None, help="also write the docs' tables here")
+    p.add_argument("--from-json", type=Path, default=None,
+                   help="do not run: read a saved result (--out) and write --markdown from it")
+    p.add_argument("--progress", action="store_true", help="show progress bars on stderr")
+    p.add_argument("--json", action="store_true", help="compact JSON on one line (the default is indented)")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from nuav2.atomic import atomic_write_bytes, atomic_write_json
+    from nuav2.bench.ablation import AblationOptions, bench_ablation, markdown_table
+    from nuav2.bench.cli_args import command_line, parse_ints
+    from nuav2.cli import UsageError
+    from nuav2.synth import FACTORS, PRESETS
+
+    if args.from_json is not None:
+        try:
+            result = json.loads(Path(args.from_json).read_text())
+        except json.JSONDecodeError as e:
+            raise UsageError(f"--from-json {args.from_json}: not valid JSON ({e})") from e
+    else:
+        seeds = parse_ints(args.seeds, "--seeds")
+        factors = FACTORS if args.factors == "all" else tuple(f.strip() for f in args.factors.split(","))
+        presets = tuple(p.strip() for p in args.presets.split(",") if p.strip())
+        modes = tuple(m.strip() for m in args.modes.split(",") if m.strip())
+        for flag, got, known in (("--factors", factors, FACTORS), ("--presets", presets, PRESETS),
+                                 ("--modes", modes, ("warp", "render"))):
+            bad = [x for x in got if x not in known]
+            if bad:
+                raise UsageError(f"{flag}: unknown {', '.join(bad)}; known: {', '.join(known)}")
+        opts = AblationOptions(seeds=seeds, factors=factors, presets=presets, seconds=args.seconds,
+                               image_scale=args.image_scale, rig=args.rig, scale=args.scale,
+                               recon_preset=args.recon_preset, modes=modes, speed_seconds=args.speed_seconds,
+                               pictures=args.pictures, work_dir=args.work_dir, command=command_line(),
+                               progress=args.progress)
+        result = bench_ablation(opts)
+        if args.out is not None:
+            atomic_write_json(args.out, result, indent=1)
+    if args.markdown is not None:
+        atomic_write_bytes(args.markdown, markdown_table(result).encode())
+    print(json.dumps(result, indent=None if args.json else 1))
+    return 0

@@ -1,0 +1,57 @@
+"""``nuav2 bench ablation`` on a tiny run: rows, costs against easy, the docs' table and a picture."""
+
+from __future__ import annotations
+
+import json
+
+import cv2
+import pytest
+
+from nuav2.bench.ablation import AblationOptions, ablation_rows, bench_ablation, markdown_table
+from nuav2.cli import main as cli_main
+from nuav2.synth import FACTORS
+
+
+def test_rows_are_easy_each_factor_alone_then_the_presets():
+    rows = ablation_rows(AblationOptions())
+    assert [name for name, _ in rows] == ["easy", *(f"+{f}" for f in FACTORS), "medium", "hard"]
+    assert rows[0][1].factors == frozenset()
+    for (name, cfg), f in zip(rows[1:], FACTORS):
+        assert cfg.factors == {f} and cfg.preset == "easy", name
+    assert rows[-1][1].factors == frozenset(FACTORS)
+
+
+def test_exposure_costs_warp_and_the_table_says_how_it_was_measured(tmp_path):
+    opts = AblationOptions(seeds=(0,), factors=("exposure",), presets=(), seconds=0.3, image_scale=0.0625,
+                           scale=0.1, modes=("warp",), speed_seconds=0.0, pictures=tmp_path,
+                           command="nuav2 bench ablation (test)")
+    result = bench_ablation(opts)
+    assert set(result["rows"]) == {"easy", "+exposure"}
+    easy, exposed = result["rows"]["easy"]["warp"], result["rows"]["+exposure"]["warp"]
+    assert easy["psnr_db_whole"] > 15.0 and easy["ssim_ground"] > 0.5
+    # The log's images carry exposure, white balance, vignetting and noise; the truth does not.
+    assert exposed["delta"]["psnr_db_whole"] < -0.5
+    change = exposed["delta"]["psnr_db_whole"]
+    assert exposed["psnr_db_whole"] == pytest.approx(easy["psnr_db_whole"] + change, abs=2e-3)
+    per_seed = result["per_seed"]["+exposure"][0]
+    assert per_seed["modes"]["warp"]["convert"]["cpu_s"] > 0 and per_seed["frames"] == 3
+    assert "synth_speed" not in result  # --speed-seconds 0
+    md = markdown_table(result)
+    assert "| +exposure |" in md and "nuav2 bench ablation (test)" in md and "Load (1 min)" in md
+    picture = cv2.imread(str(tmp_path / "realism_easy.png"))
+    assert picture is not None and picture.shape[1] > 2 * picture.shape[0]  # source | truth | warp
+
+
+def test_cli_rejects_unknown_factor_and_renders_a_saved_result(tmp_path, capsys):
+    assert cli_main(["bench", "ablation", "--factors", "fog"]) == 2
+    assert "fog" in capsys.readouterr().err
+    saved = {"options": {"modes": ["warp"]}, "command": "nuav2 bench ablation", "how": "test",
+             "machine_start": {"load_1_5_15": [1.0, 1.0, 1.0], "cpu_count": 2},
+             "machine_end": {"load_1_5_15": [2.0, 1.0, 1.0]},
+             "rows": {"easy": {"warp": {"psnr_db_whole": 25.0, "psnr_db_ground": 30.0, "ssim_whole": 0.9,
+                                        "ssim_ground": 0.95, "paint_px": 0.8, "convert_wall_s": 3.0,
+                                        "convert_cpu_s": 1.0}}}}
+    (tmp_path / "r.json").write_text(json.dumps(saved))
+    assert cli_main(["bench", "ablation", "--from-json", str(tmp_path / "r.json"), "--markdown",
+                     str(tmp_path / "t.md"), "--json"]) == 0
+    assert "| easy | 25.00 | 30.00 | 0.900 | 0.950 | 0.80 | 3 (1) |" in (tmp_path / "t.md").read_text()
