@@ -58,3 +58,25 @@ def test_bench_recon_over_two_seeds_scores_regions_and_marks_the_tuned_seed():
     assert "`nuav2 bench recon (test)`" in text
     assert "seed 0 (the seed the reconstruction presets were tuned on)" in text
     assert "| easy | init-only | 1 |" in text
+
+
+def test_bench_recon_scenes_empty_road_gets_a_smaller_budget_than_a_busy_junction():
+    """``--scene empty,busy``: the scene budget follows the scene (a straight road without traffic against
+    a junction with traffic); each row reports its budget, iterations run and held-out source-view PSNR next
+    to the target-rig PSNR, and the markdown puts the scenes side by side."""
+    from nuav2.bench.markdown import recon_markdown
+
+    tiny = {k: v for k, v in TINY_SYNTH.items() if not k.startswith("n_")}
+    result = bench_recon(seeds=(0,), presets=("easy",), budgets=[SEED_ONLY], n_times=1,
+                         scenes=("empty", "busy"), synth_overrides=tiny,
+                         command="nuav2 bench recon --scene empty,busy (test)")
+    empty, busy = result["rows"]
+    assert (empty["scene"], busy["scene"]) == ("empty", "busy") and not empty["tuned"]
+    assert empty["moving_tracks"] == 0 < busy["moving_tracks"]
+    assert empty["scene_budget"] <= busy["scene_budget"]  # (both at the 20k floor on a log this small)
+    assert empty["init_s"] > 0 and busy["final_gaussians"] > 0
+    assert empty["steps"] == 0 and empty["heldout"]["images"] > 0
+    assert 5.0 < empty["heldout"]["psnr_db"] < 60.0 and 5.0 < empty["target"]["psnr_db"] < 60.0
+    text = recon_markdown(result)
+    assert "Scenes side by side" in text and "| empty | 0 | init-only |" in text
+    assert "held-out source PSNR" in text and "Preset `easy, scene busy`, seed 0:" in text

@@ -89,23 +89,35 @@ def _spread(stats: dict, key: str, spec: str = ".2f") -> str:
     return f"{s['mean']:{spec}}{std}"
 
 
+def _log_name(preset: str | None, scene: str | None) -> str:
+    return f"{preset}" + (f", scene {scene}" if scene else "")
+
+
+def _steps(r: dict) -> str:
+    if r.get("steps") is None:
+        return str(r["iterations"])
+    stop = {"plateau": ", stopped", "time budget": ", time budget"}.get(r.get("stop_reason"), "")
+    return f"{r['iterations']} ({r['steps']}{stop})"
+
+
 def recon_markdown(result: dict) -> str:
-    """Per log: the budgets' rows; then, per preset and budget, the tuned seed against the unseen seeds."""
+    """Per log: the budgets' rows; then, per preset and budget, the tuned seed against the unseen seeds;
+    then, with scene variants, the scenes side by side (Gaussians, iterations, seconds, PSNR)."""
     parts = [f"Measured with `{result['command']}` (reconstructions one after another in one process; "
              f"{_load(result)})."]
-    logs = list(dict.fromkeys((r["preset"], r["seed"]) for r in result["rows"]))
-    header = ["budget", "iterations", "Gaussians (final)", "train width", "recon s wall (CPU)",
+    logs = list(dict.fromkeys((r["preset"], r.get("scene"), r["seed"]) for r in result["rows"]))
+    header = ["budget", "iterations cap (run)", "Gaussians (final)", "train width", "recon s wall (CPU)",
               "render s/frame wall (CPU)", *[f"PSNR {g}" for g in REGIONS], "SSIM whole", "SSIM ground",
               "held-out PSNR", "paint px (truth)"]
-    for preset, seed in logs:
+    for preset, scene, seed in logs:
         rows = []
         for r in result["rows"]:
-            if (r["preset"], r["seed"]) != (preset, seed):
+            if (r["preset"], r.get("scene"), r["seed"]) != (preset, scene, seed):
                 continue
             t = r["target"]
             paint = t.get("paint") or {}
             budget = f"{r['gaussians'] // 1000}k ({r['final_gaussians'] // 1000}k)"
-            rows.append([r["name"], str(r["iterations"]), budget, str(r["train_width_px"]),
+            rows.append([r["name"], _steps(r), budget, str(r["train_width_px"]),
                          f"{r['recon_s']:.0f} ({r['recon_cpu_s']:.0f})",
                          f"{r['render_log_s'] / max(1, r['frames']):.2f} "
                          f"({r['render_log_cpu_s'] / max(1, r['frames']):.2f})",
@@ -114,25 +126,36 @@ def recon_markdown(result: dict) -> str:
                          _f((r.get("heldout") or {}).get("psnr_db")),
                          f"{_f(paint.get('median_px_render'))} ({_f(paint.get('median_px_truth'))})"])
         tuned = " (the seed the reconstruction presets were tuned on)" if (preset, seed) in {
-            (x["preset"], x["seed"]) for x in result["tuned_on"]} else ""
-        parts.append(f"Preset `{preset}`, seed {seed}{tuned}:")
+            (x["preset"], x["seed"]) for x in result["tuned_on"]} and not scene else ""
+        parts.append(f"Preset `{_log_name(preset, scene)}`, seed {seed}{tuned}:")
         parts.append(_table(header, rows))
     multi = [e for e in result["over_seeds"] if e["seeds"]]
     if multi:
         header = ["preset", "budget", "unseen seeds", *[f"PSNR {g}" for g in REGIONS], "SSIM whole",
-                  "SSIM ground", "paint px (truth)", "recon CPU s", "tuned seed: PSNR whole / ground"]
+                  "SSIM ground", "held-out PSNR", "paint px (truth)", "recon CPU s",
+                  "tuned seed: PSNR whole / ground"]
         rows = []
         for e in multi:
             u = e["untuned"]
             ts = e.get("tuned_seed")
             tuned = f"{_f(ts['psnr_whole'])} / {_f(ts['psnr_ground'])} (seed {ts['seed']})" if ts else "–"
-            rows.append([e["preset"], e["budget"], ",".join(map(str, e["seeds"])),
+            rows.append([_log_name(e["preset"], e.get("scene")), e["budget"], ",".join(map(str, e["seeds"])),
                          *[_spread(u, f"psnr_{g}") for g in REGIONS], _spread(u, "ssim_whole", ".3f"),
-                         _spread(u, "ssim_ground", ".3f"),
+                         _spread(u, "ssim_ground", ".3f"), _spread(u, "heldout_psnr"),
                          f"{_spread(u, 'paint_px')} ({_spread(u, 'paint_px_truth')})",
                          _spread(u, "recon_cpu_s", ".0f"),
                          tuned])
         parts.append("Over seeds (mean ± sample standard deviation over the unseen seeds; the tuned seed "
                      "apart):")
+        parts.append(_table(header, rows))
+    scened = [r for r in result["rows"] if r.get("scene")]
+    if scened:
+        header = ["scene", "seed", "budget", "scene Gaussian budget", "Gaussians (final)", "iterations run",
+                  "recon s wall (CPU)", "target PSNR whole", "target PSNR ground", "held-out source PSNR"]
+        rows = [[r["scene"], str(r["seed"]), r["name"], str(r.get("scene_budget")), str(r["final_gaussians"]),
+                 _steps(r), f"{r['recon_s']:.0f} ({r['recon_cpu_s']:.0f})", _f(r["target"]["psnr_db"]),
+                 _f(r["target"]["regions"]["psnr_db"]["ground"]), _f((r.get("heldout") or {}).get("psnr_db"))]
+                for r in scened]
+        parts.append("Scenes side by side (what the scene budget and the patience rule spend on each):")
         parts.append(_table(header, rows))
     return "\n\n".join(parts) + "\n"

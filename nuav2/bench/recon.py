@@ -16,6 +16,7 @@ the seed the reconstruction presets were tuned on (``TUNED``) apart.
 
 from __future__ import annotations
 
+import itertools
 import tempfile
 import time
 from dataclasses import replace
@@ -33,6 +34,14 @@ DEFAULT_TARGET_RIG = "nuscenes"
 DEFAULT_TARGET_SCALE = 0.125  # nuScenes 1600x900 -> 200x112, the resolution of the default synthetic log
 # (synthetic preset, seed) the reconstruction presets were tuned on; every other seed is unseen.
 TUNED = frozenset({("easy", 0)})
+# Scene variants (``--scene``): SynthConfig overrides on top of the preset. ``empty``: a straight road
+# (the arterial layout, the ego keeping its lane) with no traffic at all; ``busy``: the four-way junction
+# with twice the default traffic. The scene budget should give the first far fewer Gaussians.
+SCENES: dict[str, dict] = {
+    "empty": {"layout": "arterial", "lane_change": False, "n_parked": 0, "n_moving": 0, "n_pedestrians": 0,
+              "n_cyclists": 0},
+    "busy": {"layout": "four_way", "n_parked": 12, "n_moving": 6, "n_pedestrians": 3, "n_cyclists": 2},
+}
 
 
 def eval_times(scene: SceneLog, n: int) -> np.ndarray:
@@ -157,8 +166,11 @@ def _one_log(log_dir: Path, budgets: list[dict], holdout_every: int, n_times: in
         sw = Stopwatch()
         with sw:
             splat = reconstruct(scene, cfg, progress=progress)
+        train, init = splat.info.get("train") or {}, splat.info.get("init_stats") or {}
         row = {**b, "log_id": scene.log_id, "recon_s": sw.wall_s[0], "recon_cpu_s": sw.cpu_s[0],
                "load_1min_after_recon": sw.load[0], "final_gaussians": splat.num_gaussians(),
+               "scene_budget": init.get("gaussian_budget"), "moving_tracks": init.get("moving_tracks"),
+               "steps": train.get("steps"), "stop_reason": train.get("stop_reason"),
                "init_s": splat.info.get("init_seconds")}
         render = render_whole_log_s(splat, scene)
         row |= {"render_log_s": render.wall_s[0], "render_log_cpu_s": render.cpu_s[0],
@@ -179,12 +191,14 @@ def _one_log(log_dir: Path, budgets: list[dict], holdout_every: int, n_times: in
 def bench_recon(log_dir: str | Path | None = None, *, seed: int = 0, seeds: tuple[int, ...] | None = None,
                 presets: tuple[str, ...] = ("easy",), budgets: list[dict] | None = None,
                 holdout_every: int = 5, n_times: int = 6, synth_overrides: dict | None = None,
-                command: str | None = None, progress: bool = False) -> dict:
+                scenes: tuple[str | None, ...] = (None,), command: str | None = None,
+                progress: bool = False) -> dict:
     """Speed-against-error rows for each (preset, seed, budget) in one process, and per (preset, budget)
     the mean and spread over the seeds the reconstruction presets were not tuned on.
 
     With ``log_dir`` (a synthetic log) only that log is measured; otherwise one log is generated per
-    preset and seed (``seeds``, default ``(seed,)``), ``synth_overrides`` changing its SynthConfig.
+    preset, scene (``SCENES``; None: the preset's own) and seed (``seeds``, default ``(seed,)``),
+    ``synth_overrides`` changing its SynthConfig.
     """
     from nuav2.synth import SynthConfig, generate_log
 
@@ -194,17 +208,18 @@ def bench_recon(log_dir: str | Path | None = None, *, seed: int = 0, seeds: tupl
     gen_s: dict[str, float] = {}
     if log_dir is not None:
         for r in _one_log(Path(log_dir), budgets, holdout_every, n_times, progress):
-            rows.append({"preset": None, "seed": None, "tuned": False, **r})
+            rows.append({"preset": None, "scene": None, "seed": None, "tuned": False, **r})
     else:
-        for preset in presets:
-            for sd in seeds or (seed,):
-                with tempfile.TemporaryDirectory(prefix="nuav2-bench-recon-") as tmp:
-                    t0 = time.perf_counter()
-                    config = SynthConfig.for_preset(preset, **(synth_overrides or {}))
-                    log = generate_log(Path(tmp), seed=sd, config=config)
-                    gen_s[f"{preset}/{sd}"] = round(time.perf_counter() - t0, 2)
-                    for r in _one_log(log, budgets, holdout_every, n_times, progress):
-                        rows.append({"preset": preset, "seed": sd, "tuned": (preset, sd) in TUNED, **r})
+        for preset, scene_name, sd in itertools.product(presets, scenes, seeds or (seed,)):
+            with tempfile.TemporaryDirectory(prefix="nuav2-bench-recon-") as tmp:
+                t0 = time.perf_counter()
+                overrides = {**(synth_overrides or {}), **SCENES.get(scene_name, {})}
+                log = generate_log(Path(tmp), seed=sd, config=SynthConfig.for_preset(preset, **overrides))
+                gen_s["/".join(str(x) for x in (preset, scene_name, sd) if x is not None)] = round(
+                    time.perf_counter() - t0, 2)
+                tuned = (preset, sd) in TUNED and scene_name is None
+                for r in _one_log(log, budgets, holdout_every, n_times, progress):
+                    rows.append({"preset": preset, "scene": scene_name, "seed": sd, "tuned": tuned, **r})
     return {"command": command, "interleaved": False, "machine_at_start": start,
             "load_1_5_15_at_end": machine()["load_1_5_15"], "generate_s": gen_s,
             "tuned_on": [{"preset": p, "seed": s} for p, s in sorted(TUNED)],
@@ -217,19 +232,21 @@ def _row_figures(r: dict) -> dict[str, float | None]:
             **{f"ssim_{k}": v for k, v in t["regions"]["ssim"].items()},
             "paint_px": (t.get("paint") or {}).get("median_px_render"),
             "paint_px_truth": (t.get("paint") or {}).get("median_px_truth"),
+            "heldout_psnr": (r.get("heldout") or {}).get("psnr_db"),
             "recon_s": r["recon_s"], "recon_cpu_s": r["recon_cpu_s"],
+            "final_gaussians": r.get("final_gaussians"), "steps": r.get("steps"),
             "render_s_per_frame": r["render_log_s"] / max(1, r["frames"])}
 
 
 def over_seeds(rows: list[dict]) -> list[dict]:
-    """Per (preset, budget): the tuned seed's figures apart, and mean / sample std / min / max over the
-    other seeds (std is None with one seed)."""
+    """Per (preset, scene, budget): the tuned seed's figures apart, and mean / sample std / min / max over
+    the other seeds (std is None with one seed)."""
     out = []
-    keys = list(dict.fromkeys((r["preset"], r["name"]) for r in rows))
-    for preset, name in keys:
-        group = [r for r in rows if (r["preset"], r["name"]) == (preset, name)]
+    keys = list(dict.fromkeys((r["preset"], r.get("scene"), r["name"]) for r in rows))
+    for preset, scene_name, name in keys:
+        group = [r for r in rows if (r["preset"], r.get("scene"), r["name"]) == (preset, scene_name, name)]
         untuned = [_row_figures(r) for r in group if not r["tuned"]]
-        entry: dict = {"preset": preset, "budget": name,
+        entry: dict = {"preset": preset, "scene": scene_name, "budget": name,
                        "seeds": [r["seed"] for r in group if not r["tuned"]]}
         tuned = [r for r in group if r["tuned"]]
         if tuned:

@@ -22,6 +22,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("log_dir", type=Path, nargs="?", default=None, help="a synthetic log directory")
     p.add_argument("--preset", default="easy", help="synthetic realism preset(s): easy,medium,hard or all")
     p.add_argument("--seeds", default="0", help="synthetic world seeds when generating, comma-separated")
+    p.add_argument("--scene", default=None,
+                   help="scene variants on top of the preset, comma-separated: empty (a straight road, "
+                        "no traffic), busy (the four-way junction, twice the traffic); default: the preset's")
     p.add_argument("--budgets", default=None,
                    help="comma-separated budget names (default: all of them)")
     p.add_argument("--holdout-every", type=int, default=5, help="hold out every k-th source image per camera")
@@ -38,7 +41,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from nuav2.atomic import atomic_write_json
     from nuav2.bench.cli_args import command_line, parse_ints, parse_presets
-    from nuav2.bench.recon import bench_recon, default_budgets, plot_bench
+    from nuav2.bench.recon import SCENES, bench_recon, default_budgets, plot_bench
 
     budgets = default_budgets()
     presets = parse_presets(args.preset)  # a bad value: one line from nuav2.cli
@@ -50,9 +53,15 @@ def run(args: argparse.Namespace) -> int:
         if unknown:
             raise UsageError(f"--budgets: unknown budget(s) {unknown}; known: {sorted(known)}")
         budgets = [b for b in budgets if b["name"] in names]
+    scenes: tuple[str | None, ...] = (None,)
+    if args.scene:
+        scenes = tuple(dict.fromkeys(s.strip() for s in args.scene.split(",") if s.strip()))
+        unknown = sorted(set(scenes) - set(SCENES))
+        if unknown or not scenes:
+            raise UsageError(f"--scene: unknown scene(s) {unknown or [args.scene]}; known: {sorted(SCENES)}")
     result = bench_recon(args.log_dir, seeds=seeds, presets=tuple(presets), budgets=budgets,
-                         holdout_every=args.holdout_every, n_times=args.times, command=command_line(),
-                         progress=args.progress)
+                         holdout_every=args.holdout_every, n_times=args.times, scenes=scenes,
+                         command=command_line(), progress=args.progress)
     if args.out is not None:
         atomic_write_json(args.out, result, indent=1)
     if args.markdown is not None:
