@@ -37,6 +37,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--markdown", type=Path, default=None, help="also write the docs' tables here")
     p.add_argument("--from-json", type=Path, default=None,
                    help="do not run: read a saved result (--out) and write --markdown from it")
+    p.add_argument("--before", type=Path, default=None,
+                   help="a saved earlier result (--out): --markdown then also compares the two, factor by "
+                        "factor, with the robustness goals (nuav2/bench/ablation_compare.py)")
     p.add_argument("--progress", action="store_true", help="show progress bars on stderr")
     p.add_argument("--json", action="store_true", help="compact JSON on one line (the default is indented)")
     p.set_defaults(func=run)
@@ -49,6 +52,14 @@ def run(args: argparse.Namespace) -> int:
     from nuav2.cli import UsageError
     from nuav2.synth import FACTORS, PRESETS
 
+    before = None
+    if args.before is not None:  # read first: a bad file fails before the long run
+        from nuav2.bench.ablation_compare import compare_markdown, goals
+
+        try:
+            before = json.loads(Path(args.before).read_text())
+        except (OSError, json.JSONDecodeError) as e:
+            raise UsageError(f"--before {args.before}: cannot read a saved result ({e})") from e
     if args.from_json is not None:
         try:
             result = json.loads(Path(args.from_json).read_text())
@@ -72,7 +83,12 @@ def run(args: argparse.Namespace) -> int:
         result = bench_ablation(opts)
         if args.out is not None:
             atomic_write_json(args.out, result, indent=1)
+    if before is not None:
+        result = {**result, "goals": goals(before, result)}
     if args.markdown is not None:
-        atomic_write_bytes(args.markdown, markdown_table(result).encode())
+        text = markdown_table(result)
+        if before is not None:
+            text += "\n" + compare_markdown(before, result)
+        atomic_write_bytes(args.markdown, text.encode())
     print(json.dumps(result, indent=None if args.json else 1))
     return 0
