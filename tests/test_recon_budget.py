@@ -85,3 +85,14 @@ def test_seeding_a_log_gives_a_scene_budget_and_coarse_plain_ground(tmp_path):
 
     fixed = initial_scene(scene, views, replace(cfg, budget=None), sh_degree=0)
     assert fixed.budget is None and fixed.stats["ground_seeds"] == fixed.stats["ground_seeds_fine"]
+    # Over the cap: ground stays whole, structure near and far from the path is thinned alike (far seeds
+    # are already sparse; dropping them first blanked the far side of a wide road).
+    tiers = st["seeds_by_tier"]
+    assert st["background_gaussians"] < cfg.max_background and tiers["far structure"] > 50  # nothing thinned
+    ground = tiers["textured ground"] + tiers["plain ground"]
+    capped = initial_scene(scene, views, replace(cfg, max_background=ground + (tiers["near structure"] +
+                                                                              tiers["far structure"]) // 2),
+                           sh_degree=0).stats["seeds_by_tier"]
+    assert capped["textured ground"] + capped["plain ground"] == ground
+    for name in ("near structure", "far structure"):
+        assert 0.3 * tiers[name] < capped[name] < 0.7 * tiers[name], name

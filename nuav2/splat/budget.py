@@ -7,7 +7,8 @@ poles); each moving track brings its own. The densification budget is the seed c
 growth factor plus a share per moving track (:func:`scene_budget`), so a plain, empty road ends
 with fewer Gaussians than a busy junction. When seeds exceed the cap they are kept by priority
 (:func:`keep_by_priority`): textured ground (paint) first, then plain ground, then LiDAR and
-facade seeds near the path, then far ones; the tier that straddles the cap is thinned uniformly.
+facade seeds (near and far from the path alike: far ones are already sparse); the tier that
+straddles the cap is thinned uniformly.
 """
 
 from __future__ import annotations

@@ -174,7 +174,9 @@ def initial_scene(scene: SceneLog, views: list[SourceView], cfg: InitConfig, *, 
                              TIER_FAR))
     if cfg.budget is None:  # the former rule: a uniform sample over all seeds
         tier = np.zeros(len(tier), np.int64)
-    sel = keep_by_priority(tier, cfg.max_background, rng)
+    # Structure near and far is thinned alike: far seeds are already sparse (coarser voxel bands), and
+    # dropping them first blanked the far side of a wide road (-5 dB on the arterial's left cameras).
+    sel = keep_by_priority(np.minimum(tier, TIER_NEAR), cfg.max_background, rng)
     bg_pts, bg_rgb, kind, spacing, tier = bg_pts[sel], bg_rgb[sel], kind[sel], spacing[sel], tier[sel]
     is_ground = kind == GROUND
     scales = np.repeat(knn_scales(bg_pts, 3, cfg.min_scale_m, cfg.max_scale_m)[:, None], 3, axis=1)
