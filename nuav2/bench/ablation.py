@@ -250,6 +250,7 @@ def preset_picture(path: Path, av2_root: Path, written: dict, rec: dict, height:
     gap = np.full((height, 4, 3), 255, np.uint8)
     row = np.concatenate([x for t in tiles for x in (t, gap)][:-1], axis=1)
     ok, buf = cv2.imencode(".png", row[:, :, ::-1])
+    path.parent.mkdir(parents=True, exist_ok=True)
     if not ok:
         raise RuntimeError(f"{path}: PNG encoding failed")
     atomic_write_bytes(path, buf.tobytes())
