@@ -50,8 +50,12 @@ def test_cli_rejects_unknown_factor_and_renders_a_saved_result(tmp_path, capsys)
              "machine_end": {"load_1_5_15": [2.0, 1.0, 1.0]},
              "rows": {"easy": {"warp": {"psnr_db_whole": 25.0, "psnr_db_ground": 30.0, "ssim_whole": 0.9,
                                         "ssim_ground": 0.95, "paint_px": 0.8, "convert_wall_s": 3.0,
-                                        "convert_cpu_s": 1.0}}}}
+                                        "convert_cpu_s": 1.0}}},
+             "synth_speed": {"hard": {"wall_s_per_frame": 1.5, "cpu_s_per_frame": 0.7,
+                                      "load_1min": [3.0, 4.5]}}}
     (tmp_path / "r.json").write_text(json.dumps(saved))
     assert cli_main(["bench", "ablation", "--from-json", str(tmp_path / "r.json"), "--markdown",
                      str(tmp_path / "t.md"), "--json"]) == 0
-    assert "| easy | 25.00 | 30.00 | 0.900 | 0.950 | 0.80 | 3 (1) |" in (tmp_path / "t.md").read_text()
+    md = (tmp_path / "t.md").read_text()
+    assert "| easy | 25.00 | 30.00 | 0.900 | 0.950 | 0.80 | 3 (1) |" in md
+    assert "| hard | 1.50 | 0.70 | 3.0-4.5 |" in md

@@ -250,6 +250,7 @@ def preset_picture(path: Path, av2_root: Path, written: dict, rec: dict, height:
     gap = np.full((height, 4, 3), 255, np.uint8)
     row = np.concatenate([x for t in tiles for x in (t, gap)][:-1], axis=1)
     ok, buf = cv2.imencode(".png", row[:, :, ::-1])
+    path.parent.mkdir(parents=True, exist_ok=True)
     if not ok:
         raise RuntimeError(f"{path}: PNG encoding failed")
     atomic_write_bytes(path, buf.tobytes())
@@ -259,7 +260,8 @@ def markdown_table(result: dict) -> str:
     """The docs' table: per row, each mode's scores and their change against easy; how it was measured."""
     modes = result["options"]["modes"]
     head = ["row"] + [f"{m} {c}" for m in modes for c in ("PSNR dB (Δ)", "ground PSNR (Δ)", "SSIM (Δ)",
-                                                           "ground SSIM (Δ)", "paint px (Δ)", "s")]
+                                                           "ground SSIM (Δ)", "paint px (Δ)",
+                                                           "s wall (CPU)")]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
 
     def cell(m: dict, key: str, dkey: str) -> str:
@@ -279,12 +281,19 @@ def markdown_table(result: dict) -> str:
                       f"{m['convert_wall_s']:.0f} ({m['convert_cpu_s']:.0f})" if m else "–"]
         lines.append("| " + " | ".join(cells) + " |")
     load = [result["machine_start"]["load_1_5_15"][0], result["machine_end"]["load_1_5_15"][0]]
+    row_loads = [m["convert"]["load_1min"] for recs in result.get("per_seed", {}).values() for r in recs
+                 for m in r["modes"].values() if "convert" in m]
+    during = f", {min(row_loads):.1f}-{max(row_loads):.1f} during the conversions" if row_loads else ""
     lines += ["", f"Measured with `{result['command']}`: {result['how']}. Load (1 min) "
-                  f"{load[0]:.1f} at the start, {load[1]:.1f} at the end, on "
+                  f"{load[0]:.1f} at the start, {load[1]:.1f} at the end{during}, on "
                   f"{result['machine_start']['cpu_count']} cores."]
-    if "synth_speed" in result:
-        sp = result["synth_speed"]
-        lines += ["", "| preset | synth s / frame wall | CPU | load |", "|---|---|---|---|"]
-        lines += [f"| {p} | {v['wall_s_per_frame']:.2f} | {v['cpu_s_per_frame']:.2f} | "
-                  f"{v['load_1min'][0]:.1f}-{v['load_1min'][1]:.1f} |" for p, v in sp.items()]
+    table = "\n".join(lines) + "\n"
+    return table + ("\n" + speed_markdown(result) if "synth_speed" in result else "")
+
+
+def speed_markdown(result: dict) -> str:
+    """The synth speed table (seconds per frame per preset, wall and CPU, the load while measured)."""
+    lines = ["| preset | synth s / frame, wall | CPU | load (1 min) |", "|---|---|---|---|"]
+    lines += [f"| {p} | {v['wall_s_per_frame']:.2f} | {v['cpu_s_per_frame']:.2f} | "
+              f"{v['load_1min'][0]:.1f}-{v['load_1min'][1]:.1f} |" for p, v in result["synth_speed"].items()]
     return "\n".join(lines) + "\n"

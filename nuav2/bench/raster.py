@@ -193,6 +193,8 @@ def bench_case(scene_name: str, w: int, h: int, n: int, repeats: int, threads: i
             case["vs_gsplat"] = _image_diff(ours_images, ref_images)
         except ReferenceTooLarge as exc:
             ref_note = str(exc)
+    elif gsplat_installed():
+        ref_note = "skipped (--no-gsplat)"
     else:
         ref_note = "gsplat is not installed (pip install gsplat==1.5.3, or the dev extra)"
     times: dict[str, tuple[list, list]] = {k: ([], []) for k in candidates}
