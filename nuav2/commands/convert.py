@@ -46,11 +46,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--mode", choices=MODES, default="native",
                    help="native: keep AV2's own cameras and images (the paper's AV2 baseline); "
                         "warp: fast depth-warp of the source images into the target rig; "
-                        "render: Gaussian-splat reconstruction rendered in the target rig (nuAV2)")
+                        "render: Gaussian-splat reconstruction rendered in the target rig (nuAV2); "
+                        "truth: a synthetic log's world rendered exactly in the target rig (the oracle)")
     p.add_argument("--rig", default="nuscenes",
-                   help="warp/render: target rig, a name in rig_specs/ or a spec path (default: %(default)s)")
+                   help="warp/render/truth: target rig, a name in rig_specs/ or a spec path "
+                        "(default: %(default)s)")
     p.add_argument("--scale", type=float, default=1.0,
-                   help="warp/render: target image resolution factor, e.g. 0.25 (default: %(default)s)")
+                   help="warp/render/truth: target image resolution factor, e.g. 0.25 (default: %(default)s)")
     p.add_argument("--min-confidence", type=float, default=0.0,
                    help="render: leave out sample times where a target camera's confidence is below this")
     p.add_argument("--recon-preset", default="default",
