@@ -50,10 +50,9 @@ def summarize(result: dict) -> dict:
     cfg = result["config"]
     classes = list(cfg["model"]["classes"])
     runs = result["runs"]
-    table1 = {s: _aggregate([r for r in runs.values() if r.get("set") == s], classes) for s in cfg["sets"]}
-    by_seed = {
-        s: {r["seed"]: r["eval"]["mAP"] for r in runs.values() if r.get("set") == s} for s in cfg["sets"]
-    }
+    sets = [s for s in cfg["sets"] if any(r.get("set") == s for r in runs.values())]
+    table1 = {s: _aggregate([r for r in runs.values() if r.get("set") == s], classes) for s in sets}
+    by_seed = {s: {r["seed"]: r["eval"]["mAP"] for r in runs.values() if r.get("set") == s} for s in sets}
     ratios = {}
     for nu in ("render", "warp"):
         if nu not in table1:

@@ -1,0 +1,146 @@
+"""The mapping model on what ``nuav2 convert`` really writes: data through ``nuav2.maptr``, a short
+training run that lowers its loss, a killed run that resumes to the same weights, and predictions
+that ``nuav2 eval`` scores exactly as the in-process evaluator does."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+import torch
+
+from nuav2.cli import main
+from nuav2.mapping import (
+    MapModelConfig,
+    TrainConfig,
+    load_map_tensors,
+    load_model,
+    predict,
+    score_in_process,
+    score_with_nuav2_eval,
+    train,
+    write_results,
+)
+from nuav2.maptr.vectorize import gt_vectors_for_split
+from nuav2.synth import SynthConfig, generate_log
+
+SMALL = MapModelConfig(
+    input_focal_px=60.0,
+    stem_channels=8,
+    stage_channels=(16, 32, 48),
+    feat_channels=24,
+    depth_bins=16,
+    bev_cell_m=1.0,
+    bev_channels=24,
+    num_queries=16,
+    decoder_layers=2,
+    decoder_dim=32,
+    decoder_heads=2,
+)
+VERSION, SPLIT = "v1.0-nuav2", "av2_train"
+
+
+@pytest.fixture(scope="module")
+def truth_db(tmp_path_factory):
+    root = tmp_path_factory.mktemp("mapdb")
+    log_dir = generate_log(root / "src", seed=5, config=SynthConfig(seconds=0.4))
+    out = root / "db"
+    assert (
+        main(
+            [
+                "convert",
+                "av2",
+                str(log_dir.parent),
+                str(out),
+                "--mode",
+                "truth",
+                "--scale",
+                "0.08",
+                "--no-progress",
+            ]
+        )
+        == 0
+    )
+    return out
+
+
+def test_tensors_come_from_the_maptr_dataset_at_the_model_focal_length(truth_db, tmp_path):
+    from nuav2.maptr.dataset import MapSampleDataset
+
+    data = load_map_tensors(truth_db, VERSION, SPLIT, SMALL, cache_dir=tmp_path)
+    ds = MapSampleDataset(truth_db, VERSION, SPLIT, image_scale=data.meta["image_scale"])
+    assert len(data) == len(ds) == 4
+    item = ds[2]
+    assert data.tokens[2] == item["sample_token"]
+    fx = item["cam_intrinsic"][:, 0, 0]
+    assert torch.allclose(fx.median(), torch.tensor(SMALL.input_focal_px), rtol=1e-5)
+    h, w = item["img"].shape[-2:]
+    assert torch.equal(data.img[2, :, :, :h, :w], item["img"])
+    assert torch.equal(data.gt_labels[2], item["gt_labels"])
+    torch.testing.assert_close(data.lidar2img[2], item["lidar2img"])
+    assert data.bev_target[2].sum() > 0 and data.pv_target[2].sum() > 0
+    again = load_map_tensors(truth_db, VERSION, SPLIT, SMALL, cache_dir=tmp_path)  # from the cache file
+    assert len(list(tmp_path.glob("maptensors-*.pt"))) == 1
+    assert torch.equal(again.img, data.img) and again.tokens == data.tokens
+
+
+def test_training_lowers_the_loss(truth_db, tmp_path):
+    data = load_map_tensors(truth_db, VERSION, SPLIT, SMALL)
+    info = train(
+        SMALL,
+        TrainConfig(steps=40, batch_size=2, lr=3e-3, warmup_steps=5, eval_every=0),
+        data,
+        tmp_path / "run",
+        progress=False,
+    )
+    totals = [x["total"] for x in info["losses"]]
+    assert len(totals) == 40
+    assert sum(totals[-5:]) / 5 < 0.7 * sum(totals[:3]) / 3
+
+
+class _Stop(Exception):
+    pass
+
+
+def test_a_killed_run_resumes_to_the_same_weights(truth_db, tmp_path):
+    data = load_map_tensors(truth_db, VERSION, SPLIT, SMALL)
+    cfg = TrainConfig(steps=6, batch_size=2, warmup_steps=2, eval_every=3, checkpoint_every=2)
+    whole = train(SMALL, cfg, data, tmp_path / "whole", evaluator=lambda m: {"mAP": 0.0}, progress=False)
+
+    def killer(model):
+        raise _Stop
+
+    with pytest.raises(_Stop):  # killed at step 3, after the step-2 checkpoint
+        train(SMALL, cfg, data, tmp_path / "killed", evaluator=killer, progress=False)
+    assert not (tmp_path / "killed" / "run.json").exists()
+    resumed = train(SMALL, cfg, data, tmp_path / "killed", evaluator=lambda m: {"mAP": 0.0}, progress=False)
+    assert resumed["steps"] == whole["steps"] == 6
+    a, b = load_model(tmp_path / "whole").state_dict(), load_model(tmp_path / "killed").state_dict()
+    for k in a:
+        torch.testing.assert_close(a[k], b[k], rtol=1e-5, atol=1e-6, msg=k)
+    # a finished run is reused, not retrained
+    mtime = (tmp_path / "whole" / "model.pt").stat().st_mtime_ns
+    again = train(SMALL, cfg, data, tmp_path / "whole", progress=False)
+    assert again["fingerprint"] == whole["fingerprint"]
+    assert (tmp_path / "whole" / "model.pt").stat().st_mtime_ns == mtime
+
+
+def test_predictions_are_scored_by_nuav2_eval_as_in_process(truth_db, tmp_path):
+    data = load_map_tensors(truth_db, VERSION, SPLIT, SMALL)
+    train(SMALL, TrainConfig(steps=2, batch_size=1, eval_every=0), data, tmp_path / "run", progress=False)
+    preds = predict(load_model(tmp_path / "run"), data)
+    assert set(preds) == set(data.tokens) and all(len(v) == 50 for v in preds.values())
+    gts = gt_vectors_for_split(truth_db, VERSION, SPLIT)
+    # add GT-like vectors (0.3 m off) on half the samples so the scores are far from 0
+    for tok in data.tokens[::2]:
+        preds[tok] += [(c, p + 0.3, 0.9) for c, p in gts[tok]]
+    path = write_results(tmp_path / "pred.json", preds, SMALL.classes)
+    rec = json.loads(path.read_text())["results"][0]["vectors"][0]
+    assert set(rec) == {"pts", "pts_num", "cls_name", "type", "confidence_level"} and rec["pts_num"] == 20
+    cli = score_with_nuav2_eval(path, truth_db, VERSION, SPLIT, SMALL.classes, tmp_path / "eval.json")
+    here = score_in_process(preds, gts, SMALL.classes)
+    assert cli["n_samples"] == len(data)
+    assert 0.2 < here["mAP"] < 1.0
+    assert cli["mAP"] == pytest.approx(here["mAP"], abs=1e-6)
+    for c in SMALL.classes:
+        assert cli["ap"][c] == pytest.approx(here["ap"][c], abs=1e-6)
