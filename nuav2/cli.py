@@ -1,4 +1,9 @@
-"""Command-line entry point: argument parsing only; each command calls one library function."""
+"""Command-line entry point: argument parsing only; each command calls one library function.
+
+Errors: whatever a command raises on bad input becomes one line on stderr, ``nuav2 <command>:
+<what is wrong>`` naming the file or flag, and exit code 2; ``nuav2 -v <command> ...`` shows the
+traceback too. Commands raise :class:`UsageError` for a bad argument they detect themselves.
+"""
 
 from __future__ import annotations
 
@@ -7,11 +12,48 @@ import importlib
 import logging
 import pkgutil
 import sys
+import traceback
+from pathlib import Path
 
 import nuav2.commands
 
 _GROUPS: dict[str, argparse._SubParsersAction] = {}
 _TOP: argparse._SubParsersAction | None = None
+EXIT_BAD_INPUT = 2
+# Exceptions that mean "the input is wrong" (their message says what and where); anything else is
+# reported the same way but flagged as an internal error.
+INPUT_ERRORS = (OSError, ValueError, LookupError, AssertionError, UnicodeError)
+
+
+class UsageError(ValueError):
+    """A command-line argument is wrong; the message names the flag or path."""
+
+
+def require_database(dataroot: str | Path, version: str) -> Path:
+    """``dataroot/version`` as a path, or a UsageError naming ``--version`` / DATAROOT and what exists."""
+    root = Path(dataroot)
+    if not root.is_dir():
+        raise UsageError(f"{root}: dataroot not found")
+    folder = root / version
+    if not (folder / "scene.json").is_file():
+        found = sorted(p.name for p in root.iterdir() if (p / "scene.json").is_file())
+        raise UsageError(f"--version {version}: {folder} holds no nuScenes tables "
+                         f"(versions in {root}: {', '.join(found) or 'none'})")
+    return folder
+
+
+def describe_error(e: BaseException) -> str:
+    """One line saying what went wrong, naming the file where the exception knows it."""
+    if isinstance(e, OSError) and e.filename is not None:
+        where = f"{e.filename}" + (f" -> {e.filename2}" if e.filename2 is not None else "")
+        msg = f"{where}: {e.strerror or e}"
+    elif isinstance(e, KeyError):
+        msg = f"not found: {e.args[0]!r}" if e.args else "KeyError"
+    elif isinstance(e, INPUT_ERRORS):
+        msg = str(e) or type(e).__name__
+    else:
+        msg = f"internal error: {type(e).__name__}: {e} (rerun as 'nuav2 -v ...' for the traceback)"
+    return " ".join(msg.split())
 
 
 def group(name: str, help: str) -> argparse._SubParsersAction:
@@ -45,6 +87,11 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
+    except Exception as e:  # noqa: BLE001 - the one place errors become a message and an exit code
+        if args.verbose:
+            traceback.print_exc()
+        print(f"nuav2 {args.command}: {describe_error(e)}", file=sys.stderr)
+        return EXIT_BAD_INPUT
 
 
 if __name__ == "__main__":

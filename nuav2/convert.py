@@ -12,28 +12,29 @@ import hashlib
 import json
 import logging
 import multiprocessing
+import tempfile
 import traceback
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-
-from tqdm import tqdm
 
 from nuav2.atomic import atomic_write_json
 from nuav2.image_sources import MODES, image_source_for, write_quality_table
 from nuav2.nuscenes_db import shards as sh
 from nuav2.nuscenes_db.images import IMAGE_LINKS, NativeImages
 from nuav2.nuscenes_db.merge import merge_shards
+from nuav2.nuscenes_db.scene_names import SceneNameError
+from nuav2.nuscenes_db.scene_names import scene_names_for as _scene_names
 from nuav2.nuscenes_db.writer import WRITER_FORMAT, WriterOptions, write_log
+from nuav2.progress import progress_bar
 from nuav2.rig import RigSpecError, load_rig
 
 log = logging.getLogger(__name__)
 
 REPORT_FILE = "convert_report.json"
-MAX_SCENES = 10_000  # scene names are scene-NNNN
 
 
-class ConvertError(RuntimeError):
+class ConvertError(ValueError):
     """The conversion as a whole cannot go on (bad arguments, no log converted)."""
 
 
@@ -47,38 +48,38 @@ class ConvertOptions:
     calibration_dir: Path | None = None
     require_cameras: bool = True
     show_progress: bool = True
-    rig: str = "nuscenes"  # warp / render: target rig name or spec path
+    rig: str = "nuscenes"  # warp / render: target rig name or spec path (the CLI refuses it in native)
     scale: float = 1.0  # warp / render: target resolution factor
     recon_preset: str = "default"  # render: reconstruction budget preset
     min_confidence: float = 0.0  # render: drop sample times where a camera's confidence is below
 
     def check(self) -> None:
         if self.mode not in MODES:
-            raise ConvertError(f"mode must be one of {MODES}, got {self.mode!r}")
+            raise ConvertError(f"--mode must be one of {MODES}, got {self.mode!r}")
         if self.image_link not in IMAGE_LINKS:
-            raise ConvertError(f"image link must be one of {IMAGE_LINKS}, got {self.image_link!r}")
+            raise ConvertError(f"--image-link must be one of {IMAGE_LINKS}, got {self.image_link!r}")
         if self.keyframe_hz is not None and not self.keyframe_hz > 0:
-            raise ConvertError(f"keyframe rate must be > 0 Hz, got {self.keyframe_hz}")
+            raise ConvertError(f"--keyframe-hz must be > 0 Hz, got {self.keyframe_hz}")
         if self.workers < 1:
-            raise ConvertError(f"workers must be >= 1, got {self.workers}")
+            raise ConvertError(f"--workers must be >= 1, got {self.workers}")
         if not self.version or "/" in self.version or self.version.startswith("."):
-            raise ConvertError(f"version must be a plain directory name, got {self.version!r}")
+            raise ConvertError(f"--version must be a plain directory name, got {self.version!r}")
         if self.calibration_dir is not None and not Path(self.calibration_dir).is_dir():
-            raise ConvertError(f"{self.calibration_dir}: calibration directory not found")
+            raise ConvertError(f"--calibration {self.calibration_dir}: calibration directory not found")
         if self.mode == "render":
             from nuav2.recon import ReconConfig
 
             try:
                 ReconConfig.preset(self.recon_preset)
             except ValueError as e:
-                raise ConvertError(str(e)) from e
+                raise ConvertError(f"--recon-preset: {e}") from e
         if self.mode != "native":
             if not self.scale > 0:
-                raise ConvertError(f"scale must be > 0, got {self.scale}")
+                raise ConvertError(f"--scale must be > 0, got {self.scale}")
             try:
                 load_rig(self.rig)
             except RigSpecError as e:
-                raise ConvertError(str(e)) from e
+                raise ConvertError(f"--rig: {e}") from e
 
     def _rig_key(self) -> str:
         """A rig named by path is identified by its content, so editing the spec redoes the shards."""
@@ -116,6 +117,7 @@ class ConvertReport:
     version: str
     converted: list[str] = field(default_factory=list)
     resumed: list[str] = field(default_factory=list)
+    merged_earlier: list[str] = field(default_factory=list)  # shards in OUT from earlier runs (other SRC)
     failed: list[dict] = field(default_factory=list)  # {"log_id", "log_dir", "error"}
     scene_names: dict[str, str] = field(default_factory=dict)
     table_counts: dict[str, int] = field(default_factory=dict)
@@ -129,13 +131,40 @@ class ConvertReport:
 
 
 def scene_names_for(log_ids: list[str]) -> dict[str, str]:
-    """``scene-NNNN`` by sorted log id over every log found, so names do not depend on failures."""
-    if len(set(log_ids)) != len(log_ids):
-        dup = sorted({x for x in log_ids if log_ids.count(x) > 1})
-        raise ConvertError(f"log ids must be unique across splits; repeated: {dup}")
-    if len(log_ids) > MAX_SCENES:
-        raise ConvertError(f"{len(log_ids)} logs exceed the {MAX_SCENES} scene-NNNN names")
-    return {log_id: f"scene-{i:04d}" for i, log_id in enumerate(sorted(log_ids))}
+    """``scene-NNNN`` per log, stable whatever else is converted (``nuscenes_db.scene_names``)."""
+    try:
+        return _scene_names(log_ids)
+    except SceneNameError as e:
+        raise ConvertError(str(e)) from e
+
+
+def prepare_output_dir(out: Path) -> None:
+    """Create OUT (or accept an existing directory) and make sure files can be written in it."""
+    if out.exists() and not out.is_dir():
+        raise ConvertError(f"{out}: OUT exists and is not a directory")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=out):
+            pass
+    except OSError as e:
+        what = "cannot write in" if out.is_dir() else "cannot create"
+        raise ConvertError(f"{out}: {what} the output directory ({e.strerror or e})") from None
+
+
+def earlier_shards(out: Path, version: str, fingerprint: str, this_run: set[str]) -> dict[str, Path]:
+    """Complete shards in OUT of logs outside this run (an earlier run on another split), to merge too.
+
+    A shard made with other options cannot share a database with this run's: refuse, naming them.
+    """
+    earlier = {x: p for x, p in sh.existing_shards(out, version).items() if x not in this_run}
+    other = sorted(x for x, p in earlier.items() if not sh.is_complete(p, fingerprint))
+    if other:
+        raise ConvertError(
+            f"{sh.shard_root(out, version)} holds shards of {len(other)} log(s) converted with other options "
+            f"or an older nuav2 ({', '.join(other[:3])}{', ...' if len(other) > 3 else ''}), and one "
+            f"database holds logs converted one way. Convert them again with these options (add their "
+            f"SRC), use another --version or OUT, or delete those shard directories")
+    return earlier
 
 
 def convert_one_log(log_dir: Path, dataroot: Path, options: ConvertOptions) -> dict:
@@ -166,7 +195,8 @@ def convert_one_log(log_dir: Path, dataroot: Path, options: ConvertOptions) -> d
 
 
 def _run(jobs: list[Path], dataroot: Path, options: ConvertOptions) -> list[dict]:
-    bar = tqdm(total=len(jobs), desc="convert", unit="log", disable=not options.show_progress or not jobs)
+    bar = progress_bar(total=len(jobs), desc="convert", unit="log",
+                       disable=not options.show_progress or not jobs)
     results = []
     try:
         if options.workers == 1 or len(jobs) <= 1:
@@ -186,17 +216,23 @@ def _run(jobs: list[Path], dataroot: Path, options: ConvertOptions) -> list[dict
 
 
 def convert_av2(src: Path, out: Path, options: ConvertOptions | None = None) -> ConvertReport:
-    """Convert an AV2 split dir (or one log) at ``src`` into a nuScenes dataroot at ``out``."""
+    """Convert an AV2 split dir (or one log) at ``src`` into a nuScenes dataroot at ``out``.
+
+    The database holds this run's logs and every complete shard already in ``out`` made with the
+    same options (e.g. the train split converted earlier into the same OUT).
+    """
     from converters.av2 import find_logs
 
     options = options or ConvertOptions()
     options.check()
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    logs = find_logs(Path(src))
-    names = scene_names_for([p.name for p in logs])
-    report = ConvertReport(dataroot=str(out), version=options.version, scene_names=names)
+    logs = find_logs(Path(src))  # a bad SRC fails here, before OUT is created
+    prepare_output_dir(out)
     fingerprint = options.fingerprint()
+    earlier = earlier_shards(out, options.version, fingerprint, {p.name for p in logs})
+    names = scene_names_for([p.name for p in logs] + sorted(earlier))
+    report = ConvertReport(dataroot=str(out), version=options.version, scene_names=names,
+                           merged_earlier=sorted(earlier))
 
     jobs = []
     for log_dir in logs:
@@ -206,6 +242,9 @@ def convert_av2(src: Path, out: Path, options: ConvertOptions | None = None) -> 
             jobs.append(log_dir)
     if report.resumed:
         log.info("resuming: %d of %d logs already have a complete shard", len(report.resumed), len(logs))
+    if earlier:
+        log.info("%s also holds %d log(s) converted earlier with the same options; they are merged too",
+                 out, len(earlier))
     for r in _run(jobs, out, options):
         if r["error"] is None:
             report.converted.append(r["log_id"])
@@ -214,6 +253,8 @@ def convert_av2(src: Path, out: Path, options: ConvertOptions | None = None) -> 
             report.failed.append(r)
 
     done = {x: sh.shard_dir(out, options.version, x) for x in report.converted + report.resumed}
+    if done:
+        done.update(earlier)
     try:
         if done:
             report.table_counts = merge_shards(out, options.version, done, {x: names[x] for x in done})
@@ -221,8 +262,21 @@ def convert_av2(src: Path, out: Path, options: ConvertOptions | None = None) -> 
             for shard_path in done.values():
                 quality.update(sh.read_meta(shard_path)["meta"].get("image_quality", {}))
             write_quality_table(out, options.version, quality)
-    finally:
-        atomic_write_json(out / REPORT_FILE, report.to_dict(), indent=1)
+    except BaseException:
+        _write_report(out, report)
+        raise
+    if not _write_report(out, report):
+        raise ConvertError(f"{out / REPORT_FILE}: cannot write the conversion report")
     if not done:
         raise ConvertError(f"no log converted ({len(report.failed)} failed); see {out / REPORT_FILE}")
     return report
+
+
+def _write_report(out: Path, report: ConvertReport) -> bool:
+    """Write ``convert_report.json``; False (logged) when it cannot be written."""
+    try:
+        atomic_write_json(out / REPORT_FILE, report.to_dict(), indent=1)
+        return True
+    except OSError as e:
+        log.error("%s: cannot write the conversion report (%s)", out / REPORT_FILE, e.strerror or e)
+        return False

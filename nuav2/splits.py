@@ -16,7 +16,7 @@ scene names, as the devkit's custom splits and ``nuav2.maptr`` read it):
 
 Positions are true city coordinates: different cities never leak. For nuScenes the city is
 ``log.location`` and positions are global; for nuAV2 logs (locations ``av2-<city>-<id>``) the
-global frame is the AV2 city frame minus ``city_xy_offset`` (``nuav2.nuscenes_db.map_frame``),
+global frame is the AV2 city frame minus ``city_offset`` (``nuav2.nuscenes_db.map_frame``),
 read from ``<version>/nuav2_logs.json`` if present, else from the ``nuav2`` block of the
 location's ``maps/expansion/<location>.json``.
 """
@@ -36,7 +36,8 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from nuav2.atomic import atomic_write_json
-from nuav2.nuscenes_db.map_frame import LOCATION_RE
+from nuav2.nuscenes_db.map_frame import LOCATION_RE, city_offset_of
+from nuav2.nuscenes_db.merge import LOGS_FILE
 
 log = logging.getLogger(__name__)
 
@@ -394,15 +395,20 @@ def load_regions(path: str | Path) -> tuple[list[Region], str]:
     return regions, straddle
 
 
-def load_lists(path: str | Path) -> dict[str, list[str]]:
-    """``{"train": [...], "val": [...], "test": [...]}`` of scene names, tokens or log ids."""
-    path = Path(path)
+def _read_json_lists(path: Path, what: str, expected: str) -> dict[str, list]:
+    """A JSON object of lists (``expected`` describes it in the error), a ValueError naming ``path``."""
     try:
         data = json.loads(path.read_text())
     except (OSError, json.JSONDecodeError) as e:
-        raise ValueError(f"{path}: cannot read lists ({e})") from None
+        raise ValueError(f"{path}: cannot read {what} ({e})") from None
     if not isinstance(data, dict) or not all(isinstance(v, list) for v in data.values()):
-        raise ValueError(f"{path}: expected {{split: [scene names, tokens or log ids]}}")
+        raise ValueError(f"{path}: expected {expected}")
+    return data
+
+
+def load_lists(path: str | Path) -> dict[str, list[str]]:
+    """``{"train": [...], "val": [...], "test": [...]}`` of scene names, tokens or log ids."""
+    data = _read_json_lists(Path(path), "lists", "{split: [scene names, tokens or log ids]}")
     return {k: [str(x) for x in v] for k, v in data.items()}
 
 
@@ -420,22 +426,42 @@ class SceneTable:
     identifiers: dict[str, set[str]]  # scene name -> name, token, log token, log file, description
 
 
+def _nuav2_logs(dataroot: Path, version: str) -> dict[str, dict]:
+    """The converter's ``<version>/nuav2_logs.json`` (a list of per-log records), keyed by log token
+    and by location; empty if the file is absent (a database nuav2 did not write)."""
+    path = dataroot / version / LOGS_FILE
+    if not path.is_file():
+        return {}
+    try:
+        records = json.loads(path.read_text())
+    except (OSError, ValueError) as e:
+        raise ValueError(f"{path}: cannot read the per-log city placement ({e})") from None
+    if not isinstance(records, list) or not all(isinstance(r, dict) for r in records):
+        raise ValueError(f"{path}: expected a JSON list of per-log records, as nuav2 convert writes")
+    out: dict[str, dict] = {}
+    for r in records:
+        for key in (r.get("log_token"), r.get("location")):
+            if isinstance(key, str) and key:
+                out[key] = r
+    return out
+
+
 def _nuav2_placement(dataroot: Path, version: str, log_rec: dict, cache: dict) -> tuple[str, np.ndarray]:
-    """(city, city_xy_offset) of a converted AV2 log: sidecar first, else the map expansion JSON."""
+    """(city, city_offset[:2]) of a converted AV2 log: ``nuav2_logs.json`` first, else the expansion JSON."""
     location = log_rec["location"]
     if "sidecar" not in cache:
-        side = dataroot / version / "nuav2_logs.json"
-        cache["sidecar"] = json.loads(side.read_text()) if side.is_file() else {}
+        cache["sidecar"] = _nuav2_logs(dataroot, version)
     for key in (log_rec["token"], location):
         rec = cache["sidecar"].get(key)
         if rec is not None:
-            return str(rec["city"]), np.asarray(rec["city_xy_offset"], dtype=np.float64)
+            where = f"{dataroot / version / LOGS_FILE} (log {rec.get('log_id', key)})"
+            return str(rec["city"]), city_offset_of(rec, where)[:2]
     if location not in cache:
         path = dataroot / "maps" / "expansion" / f"{location}.json"
         try:
             meta = json.loads(path.read_text())["nuav2"]
-            cache[location] = (str(meta["city_name"]), np.asarray(meta["city_xy_offset"], dtype=np.float64))
-        except (OSError, ValueError, KeyError) as e:
+            cache[location] = (str(meta["city_name"]), city_offset_of(meta, str(path))[:2])
+        except (OSError, ValueError, KeyError, TypeError) as e:
             raise ValueError(
                 f"{path}: cannot read the 'nuav2' city placement of location {location} "
                 f"({type(e).__name__}: {e}); without it nuAV2 scenes cannot be placed in "
@@ -491,24 +517,42 @@ def read_scene_table(dataroot: str | Path, version: str) -> SceneTable:
     return table
 
 
+def available_splits(dataroot: str | Path, version: str) -> dict[str, list[str]]:
+    """{split name: scene names} a consumer can ask for: ``<version>/splits.json`` (which wins on a
+    name clash), then each of the devkit's built-in nuScenes lists that has scenes in this database."""
+    folder = Path(dataroot) / version
+    try:
+        present = {s.get("name") for s in json.loads((folder / "scene.json").read_text())}
+    except (OSError, ValueError, AttributeError) as e:
+        raise ValueError(f"{folder / 'scene.json'}: cannot read the scene table ({e})") from None
+    out: dict[str, list[str]] = {}
+    from nuscenes.utils.splits import create_splits_scenes
+
+    for name, scenes in create_splits_scenes().items():
+        if any(s in present for s in scenes):
+            out[name] = [s for s in scenes if s in present]
+    out.update(_read_splits_file(folder / "splits.json"))
+    return out
+
+
+def _read_splits_file(path: Path) -> dict[str, list[str]]:
+    """``splits.json`` as {split name: [scene names]}; {} when absent, a ValueError naming it when bad."""
+    if not path.is_file():
+        return {}
+    return _read_json_lists(path, "splits", "{split name: [scene names]}")
+
+
 def existing_splits(
     dataroot: str | Path, version: str, scenes: Sequence[str]
 ) -> dict[str, dict[str, list[str]]]:
     """Splits already defined for this database: ``<version>/splits.json`` and the devkit's lists."""
     present = set(scenes)
     out: dict[str, dict[str, list[str]]] = {}
-    path = Path(dataroot) / version / "splits.json"
-    if path.is_file():
-        try:
-            data = json.loads(path.read_text())
-        except (OSError, json.JSONDecodeError) as e:
-            raise ValueError(f"{path}: cannot read splits ({e})") from None
-        if not isinstance(data, dict) or not all(isinstance(v, list) for v in data.values()):
-            raise ValueError(f"{path}: expected {{split name: [scene names]}}")
-        for prefix in SPLIT_PREFIXES:
-            if f"{prefix}train" in data:
-                out[f"splits.json:{prefix}*"] = {
-                    k: [s for s in data.get(f"{prefix}{k}", []) if s in present] for k in SPLITS}
+    data = _read_splits_file(Path(dataroot) / version / "splits.json")
+    for prefix in SPLIT_PREFIXES:
+        if f"{prefix}train" in data:
+            out[f"splits.json:{prefix}*"] = {
+                k: [s for s in data.get(f"{prefix}{k}", []) if s in present] for k in SPLITS}
     from nuscenes.utils.splits import create_splits_scenes
 
     builtin = create_splits_scenes()

@@ -255,7 +255,7 @@ def render(
     try:
         nusc.get("sample", sample_token)
     except KeyError as e:
-        raise ValueError(f"{dataroot}/{version}: no sample with token {sample_token!r}") from e
+        raise ValueError(f"--sample {sample_token}: no sample with this token in {dataroot}/{version}") from e
     preds = None
     if pred_path is not None:
         all_preds = load_predictions(pred_path)

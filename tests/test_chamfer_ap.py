@@ -422,10 +422,11 @@ def test_eval_cli_with_gt_file(tmp_path, capsys):
     assert printed["mAP"] == pytest.approx(want["mAP"], abs=1e-12)
     assert json.loads(out.read_text())["ap"] == printed["ap"]
     assert main(["eval", str(pred_file), "--gt-json", str(gt_file)]) == 0
-    assert "mAP (headline, all classes)" in capsys.readouterr().out
+    headline = "mAP (headline) over 4 classes (divider, ped_crossing, boundary, centerline)"
+    assert headline in capsys.readouterr().out
     other_gt = tmp_path / "other.json"
     other_gt.write_text(json.dumps({"GTs": []}))
-    assert main(["eval", str(pred_file), "--gt-json", str(other_gt)]) == 1
+    assert main(["eval", str(pred_file), "--gt-json", str(other_gt)]) == 2
     assert "pred.json" in capsys.readouterr().err
 
 
@@ -464,10 +465,11 @@ def test_eval_cli_builds_gt_from_the_map(tmp_path, capsys):
     assert main(args) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["n_samples"] == 3 and out["n_samples_without_predictions"] == 0
-    with_gt = [c for c in CLASSES if out["num_gts"][c] > 0]
+    assert sorted(out["classes"] + out["classes_left_out"]) == sorted(CLASSES)  # left out: no GT to copy
+    with_gt = [c for c in out["classes"] if out["num_gts"][c] > 0]
     assert with_gt and all(out["class_mean_ap"][c] == pytest.approx(1.0, abs=1e-12) for c in with_gt)
     assert all(v == pytest.approx(1.0, abs=1e-12) for v in out["map_per_threshold"].values())
     results.append({"sample_token": "f" * 32, "vectors": []})
     pred.write_text(json.dumps({"meta": {}, "results": results}))
-    assert main(args) == 1
+    assert main(args) == 2
     assert "not in the GT set" in capsys.readouterr().err

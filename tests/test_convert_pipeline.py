@@ -12,6 +12,7 @@ from test_writer_support import link_log
 
 from nuav2.cli import main
 from nuav2.convert import ConvertOptions
+from nuav2.nuscenes_db.scene_names import scene_names_for
 from nuav2.nuscenes_db.shards import SHARDS_DIRNAME
 from nuav2.nuscenes_db.tables import TABLE_NAMES
 
@@ -49,10 +50,11 @@ def test_failing_log_is_reported_and_a_killed_run_resumes_to_identical_tables(
     assert not list((out / "samples" / "LIDAR_TOP").glob(f"{BAD}__*"))  # its partial output was removed
     nusc = NuScenes(VERSION, str(out), verbose=False)
     names = [(s["name"], s["description"]) for s in nusc.scene]
-    assert names == [("scene-0000", GOOD[0]), ("scene-0001", GOOD[1])]
+    want = scene_names_for(GOOD)  # stable per log, outside nuScenes' scene-0001..1110 (test_scene_names)
+    assert names == sorted((want[x], x) for x in GOOD)
     assert len(nusc.map) == 2 and {m["log_tokens"][0] for m in nusc.map} == {lg["token"] for lg in nusc.log}
     splits = json.loads((out / VERSION / "splits.json").read_text())
-    assert splits["av2_train"] == ["scene-0000", "scene-0001"]
+    assert splits["av2_train"] == sorted(want.values())
     first = _tables(out)
     assert set(first) >= {f"{t}.json" for t in TABLE_NAMES}
 
@@ -98,9 +100,9 @@ def test_options_that_change_shards_change_the_fingerprint(tmp_path: Path):
 
 
 @pytest.mark.parametrize("argv, message", [
-    (["--keyframe-hz", "0"], "keyframe rate"),
-    (["--workers", "0"], "workers"),
-    (["--version", "../x"], "version"),
+    (["--keyframe-hz", "0"], "--keyframe-hz"),
+    (["--workers", "0"], "--workers"),
+    (["--version", "../x"], "--version"),
 ])
 def test_bad_arguments_are_clear_errors(av2_fixture_log: Path, tmp_path: Path, capsys, argv, message):
     assert main(["convert", "av2", str(av2_fixture_log), str(tmp_path / "o"), "--no-progress", *argv]) == 2

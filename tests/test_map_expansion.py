@@ -102,7 +102,7 @@ def test_devkit_loads_all_layers(written, av2_map):
     assert all(r["lane_type"] in ("CAR", "BIKE") for r in nmap.lane + nmap.lane_connector)
     assert art.stats["lanes_dropped"] == 0 and art.stats["polygons_repaired"] == 0
     # The true city coordinates stay recoverable.
-    assert raw["nuav2"]["city_xy_offset"] == frame.city_xy_offset.tolist()
+    assert raw["nuav2"]["city_offset"] == frame.city_offset.tolist()
     nodes = np.array([[n["x"], n["y"]] for n in nmap.node])
     assert nodes.min() >= 20.0 - 1e-9
     assert np.all(nodes[:, 0] < raw["canvas_edge"][0]) and np.all(nodes[:, 1] < raw["canvas_edge"][1])
@@ -110,17 +110,17 @@ def test_devkit_loads_all_layers(written, av2_map):
 
 def test_city_global_round_trip(written):
     vm, frame, *_ = written
-    back = to_global(vm, MapFrame(frame.location, -frame.city_xy_offset))  # the inverse shift: global -> city
-    again = to_global(to_global(vm, frame), MapFrame(frame.location, -frame.city_xy_offset))
+    back = to_global(vm, MapFrame(frame.location, -frame.city_offset))  # the inverse shift: global -> city
+    again = to_global(to_global(vm, frame), MapFrame(frame.location, -frame.city_offset))
     for lane_id, lane in vm.lane_segments.items():
         np.testing.assert_allclose(again.lane_segments[lane_id].left_boundary, lane.left_boundary, atol=1e-9)
         np.testing.assert_allclose(back.lane_segments[lane_id].right_boundary[:, :2],
-                                   lane.right_boundary[:, :2] + frame.city_xy_offset, atol=1e-9)
+                                   lane.right_boundary[:, :2] + frame.city_offset[:2], atol=1e-9)
 
 
 def test_lane_boundaries_and_polygons_match_av2(written, av2_map):
     vm, frame, _, _, nmap = written
-    off = frame.city_xy_offset
+    off = frame.city_offset[:2]
     records = _by_av2_id(nmap.lane + nmap.lane_connector)
     worst = 0.0
     for lane_id, ls in av2_map.vector_lane_segments.items():
@@ -140,7 +140,7 @@ def test_lane_boundaries_and_polygons_match_av2(written, av2_map):
 
 def test_crossings_and_drivable_areas_match_av2(written, av2_map):
     _, frame, _, _, nmap = written
-    off = frame.city_xy_offset
+    off = frame.city_offset[:2]
     crossings = _by_av2_id(nmap.ped_crossing)
     for cid, pc in av2_map.vector_pedestrian_crossings.items():
         poly = nmap.explorer.extract_polygon(crossings[cid]["polygon_token"])
@@ -167,7 +167,7 @@ def test_road_segments_cover_exactly_the_drivable_area(written):
 
 def test_dividers_are_the_painted_boundaries_once(written, av2_map):
     _, frame, _, _, nmap = written
-    off = frame.city_xy_offset
+    off = frame.city_offset[:2]
     painted = [b.xyz[:, :2] - off for ls in av2_map.vector_lane_segments.values()
                for b, mark in ((ls.left_lane_boundary, ls.left_mark_type),
                                (ls.right_lane_boundary, ls.right_mark_type))
@@ -197,7 +197,7 @@ def test_dividers_are_the_painted_boundaries_once(written, av2_map):
 
 def test_centerlines_match_av2(written, av2_map):
     _, frame, _, _, nmap = written
-    off = frame.city_xy_offset
+    off = frame.city_offset[:2]
     records = _by_av2_id(nmap.lane + nmap.lane_connector)
     tokens = [r["token"] for r in records.values()]
     discretized = nmap.discretize_lanes(tokens, 0.5)
@@ -393,7 +393,7 @@ def test_rasterization_oracle():
 
 
 def _write_and_load(vm: VectorMap, tmp_path: Path, offset=(0.0, 0.0)):
-    frame = MapFrame("av2-pit-0badc0de", np.array(offset, dtype=np.float64))
+    frame = MapFrame("av2-pit-0badc0de", np.array([*offset, 0.0], dtype=np.float64))
     art = write_map_expansion(vm, frame, tmp_path)
     nmap = NuScenesMap(str(tmp_path), map_name=frame.location)
     for rec in nmap.polygon:
@@ -461,13 +461,13 @@ def test_bad_input_is_refused():
     lane = _lane(1, [[20, 33], [40, 33]], [[20, 30], [40, 30]])
     vm = VectorMap("PIT", {1: lane}, {}, {})
     with pytest.raises(ValueError, match="does not match"):
-        build_map_expansion(vm, MapFrame("pittsburgh", np.zeros(2)))
+        build_map_expansion(vm, MapFrame("pittsburgh", np.zeros(3)))
     with pytest.raises(ValueError, match="< 0"):
-        build_map_expansion(vm, MapFrame("av2-pit-0badc0de", np.array([25.0, 0.0])))
+        build_map_expansion(vm, MapFrame("av2-pit-0badc0de", np.array([25.0, 0.0, 0.0])))
     nan_lane = _lane(2, [[20, np.nan], [40, 33]], [[20, 30], [40, 30]])
     with pytest.raises(ValueError, match="lane 2 boundary has NaN"):
         build_map_expansion(VectorMap("PIT", {2: nan_lane}, {}, {}),
-                            MapFrame("av2-pit-0badc0de", np.zeros(2)))
+                            MapFrame("av2-pit-0badc0de", np.zeros(3)))
 
 
 # ---------------------------------------------------------------- devkit compatibility shim

@@ -50,7 +50,7 @@ def av2_map(av2_fixture_log: Path):
 
 def _city_T_global(dataroot: Path) -> np.ndarray:
     (meta,) = json.loads((dataroot / VERSION / "nuav2_logs.json").read_text())
-    return translation_T(meta["city_xy_offset"][0], meta["city_xy_offset"][1], 0.0)
+    return translation_T(*meta["city_offset"])
 
 
 def _nusc(dataroot: Path):

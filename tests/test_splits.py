@@ -264,7 +264,7 @@ def write_db(root: Path, version: str, scenes: list[dict]) -> None:
 def write_expansion(root: Path, location: str, city: str, offset: tuple[float, float]) -> None:
     (root / "maps" / "expansion").mkdir(parents=True, exist_ok=True)
     (root / "maps" / "expansion" / f"{location}.json").write_text(
-        json.dumps({"version": "1.3", "nuav2": {"city_name": city, "city_xy_offset": list(offset)}})
+        json.dumps({"version": "1.3", "nuav2": {"city_name": city, "city_offset": [*offset, 7.0]}})
     )
 
 
@@ -311,8 +311,9 @@ def test_nuav2_scenes_are_placed_in_city_coordinates(tmp_path):
         )["val"]
         == 0.5
     )
-    (tmp_path / "v1.0-test" / "nuav2_logs.json").write_text(
-        json.dumps({"lb": {"city": "PIT", "city_xy_offset": [9000.0, 0.0]}})
+    (tmp_path / "v1.0-test" / "nuav2_logs.json").write_text(  # the converter writes a list of records
+        json.dumps([{"log_token": "lb", "location": "av2-pit-00000002", "city": "PIT",
+                     "city_offset": [9000.0, 0.0, 12.0]}])
     )  # the sidecar wins over the map JSON
     np.testing.assert_allclose(
         read_scene_table(tmp_path, "v1.0-test").positions["scene-0002"][0], [9020.0, 22.0]

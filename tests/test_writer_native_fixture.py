@@ -46,7 +46,7 @@ def _log_meta(db: Path) -> dict:
 
 
 def test_devkit_loads_and_queries(nusc: NuScenes, native_db: Path, tmp_path, capsys):
-    assert len(nusc.scene) == 1 and nusc.scene[0]["name"] == "scene-0000"
+    assert len(nusc.scene) == 1 and nusc.scene[0]["name"] == "scene-2469"  # 2000 + index in av2 TRAIN
     assert nusc.scene[0]["description"] == "adcf7d18-0510-35b0-a2fa-b4cea13a6d76"
     assert nusc.log[0]["logfile"] == "adcf7d18-0510-35b0-a2fa-b4cea13a6d76"
     assert nusc.log[0]["location"] == "av2-pit-adcf7d18"
@@ -78,13 +78,13 @@ def test_devkit_loads_and_queries(nusc: NuScenes, native_db: Path, tmp_path, cap
     pts, depth, im = nusc.explorer.map_pointcloud_to_image(lidar_sd["token"], front)
     assert pts.shape[1] > 1000 and im.size == (1550, 2048)
     nusc.list_scenes()
-    assert "scene-0000" in capsys.readouterr().out
+    assert "scene-2469" in capsys.readouterr().out
     nusc.render_sample_data(lidar_sd["token"], out_path=str(tmp_path / "lidar.png"), verbose=False)
     nusc.render_sample_data(sample["data"]["ring_front_left"], out_path=str(tmp_path / "cam.png"),
                             verbose=False)
     assert (tmp_path / "lidar.png").stat().st_size > 10_000 and (tmp_path / "cam.png").stat().st_size > 1_000
     splits = json.loads((native_db / VERSION / "splits.json").read_text())
-    assert splits == {"av2_val": ["scene-0000"], "all": ["scene-0000"]}
+    assert splits == {"av2_val": ["scene-2469"], "all": ["scene-2469"]}
 
 
 def _devkit_chain_float64(points_lidar: np.ndarray, cs_l: dict, pose_l: dict, pose_c: dict,
@@ -183,7 +183,7 @@ def test_annotations_match_av2_boxes_in_the_city_frame(nusc: NuScenes, native_db
     av2 = pd.read_feather(log_dir / "annotations.feather")
     av2 = av2[av2.timestamp_ns == FIXTURE_SWEEP_NS].set_index("track_uuid")
     city_T_ego = read_city_SE3_ego(log_dir)[FIXTURE_SWEEP_NS]
-    offset = np.array(_log_meta(native_db)["city_xy_offset"] + [0.0])
+    offset = np.array(_log_meta(native_db)["city_offset"])
     by_track = {}
     for inst in nusc.instance:
         ann = nusc.get("sample_annotation", inst["first_annotation_token"])

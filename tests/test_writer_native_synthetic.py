@@ -39,7 +39,7 @@ def nusc(synthetic) -> NuScenes:
 
 
 def _global_to_city(db: Path) -> np.ndarray:
-    return np.array(json.loads((db / VERSION / "nuav2_logs.json").read_text())[0]["city_xy_offset"] + [0.0])
+    return np.array(json.loads((db / VERSION / "nuav2_logs.json").read_text())[0]["city_offset"])
 
 
 def test_samples_sweeps_and_links_at_2hz(nusc: NuScenes, synthetic):

@@ -62,8 +62,8 @@ def test_trivial_renderer_gets_aligned_camera_poses(fixture_scene, av2_fixture_l
     assert all(c[1] == sweep_ns for c in calls)
     sample = nusc.sample[0]
     assert set(sample["data"]) == {"LIDAR_TOP", *out_rig.camera_channels}
-    offset = json.loads((tmp_path / VERSION / "nuav2_logs.json").read_text())[0]["city_xy_offset"]
-    city_T_global = translation_T(offset[0], offset[1], 0.0)
+    offset = json.loads((tmp_path / VERSION / "nuav2_logs.json").read_text())[0]["city_offset"]
+    city_T_global = translation_T(*offset)
     # Independent chain: av2's own pose at the sweep, ego origin dropped 0.32 m to the ground,
     # the nuScenes rig's camera extrinsic.
     city_T_egoS = read_city_SE3_ego(av2_fixture_log)[sweep_ns].transform_matrix
@@ -85,7 +85,9 @@ def test_trivial_renderer_gets_aligned_camera_poses(fixture_scene, av2_fixture_l
     lidar_q = Quaternion(matrix=out_rig.lidar("LIDAR_TOP").ego_T_lidar[:3, :3])
     assert lidar_cs["rotation"] == pytest.approx(list(lidar_q))
     pose = nusc.get("ego_pose", lidar_sd["ego_pose_token"])
-    assert pose["translation"][2] == pytest.approx(city_T_egoT[2, 3], abs=1e-9)  # ground-level ego, city z
+    # ground-level ego; global z = city z minus the ground height under the first pose
+    assert pose["translation"][2] == pytest.approx(city_T_egoT[2, 3] - offset[2], abs=1e-9)
+    assert abs(pose["translation"][2]) < 0.05
     pts, _, im = nusc.explorer.map_pointcloud_to_image(lidar_sd["token"], front["token"])
     assert im.size == (160, 90) and pts.shape[1] > 100
 

@@ -37,7 +37,8 @@ def list_camera_frames(log_dir: Path, channels: list[str],
         if not found:
             reason = "camera directory not found" if not cam_dir.is_dir() else "no <timestamp_ns>.jpg images"
             if require_cameras:
-                raise AV2LogError(cam_dir, f"{reason} for rig camera '{ch}'")
+                raise AV2LogError(cam_dir, f"{reason} for rig camera '{ch}' (--allow-missing-cameras "
+                                           "converts the log without the cameras it lacks)")
             log.info("%s: %s; camera '%s' left empty", cam_dir, reason, ch)
         found.sort(key=lambda f: f.timestamp_ns)
         for a, b in zip(found, found[1:]):

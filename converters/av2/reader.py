@@ -60,7 +60,7 @@ def read_log(log_dir: Path, calibration_dir: Path | None = None, *, require_came
     calib_dir = Path(calibration_dir) if calibration_dir is not None else log_dir / "calibration"
     if not calib_dir.is_dir():
         raise AV2LogError(calib_dir, "calibration directory not found "
-                                     "(pass calibration_dir for a log without one)")
+                                     "(give --calibration DIR for a log that ships none)")
     rig = rig_from_calibration(calib_dir, channels)
     pose_ts, city_T_ego = read_pose_table(log_dir)
     sweeps = _within_poses(list_sweeps(log_dir), pose_ts, "lidar sweeps", log_dir)
@@ -82,11 +82,14 @@ def read_log(log_dir: Path, calibration_dir: Path | None = None, *, require_came
         split=split_of(log_dir), load_lidar=load_av2_sweep,
     )
     if any(frames.values()) or require_cameras:
-        n_synced = len(synced_sweeps(scene, camera_tolerance_ns))
+        # Cameras without any image are left out of the output (allowed only without require_cameras),
+        # so they do not decide which sweeps are in sync.
+        imaged = [ch for ch in rig.camera_channels if frames.get(ch)]
+        n_synced = len(synced_sweeps(scene, camera_tolerance_ns, channels=imaged))
         if require_cameras and n_synced == 0:
             raise AV2LogError(log_dir / "sensors" / "cameras",
                               f"no lidar sweep has an image from every camera within "
                               f"{camera_tolerance_ns} ns")
-        log.info("%s: %d of %d sweeps have every camera within %.1f ms", log_dir, n_synced, len(sweeps),
-                 camera_tolerance_ns / 1e6)
+        log.info("%s: %d of %d sweeps have an image from each of the %d cameras with images within %.1f ms",
+                 log_dir, n_synced, len(sweeps), len(imaged), camera_tolerance_ns / 1e6)
     return scene

@@ -27,11 +27,11 @@ from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
 
 from nuav2.bench.paint_alignment import paint_offsets_px, painted_boundary_points
 from nuav2.evaluate.image_metrics import psnr, ssim
 from nuav2.geometry import F64
+from nuav2.progress import progress_bar
 from nuav2.rig import CameraSpec, Rig, load_rig
 from nuav2.scene import SceneLog
 from nuav2.splat.render_target import target_city_T_cams
@@ -144,7 +144,7 @@ def bench_modes(seed: int = 0, config=None, rig_name: str = "nuscenes", scale: f
 
         # native / naive: one resize per camera.
         t_phase = time.perf_counter()
-        for t, views in tqdm(frames.items(), desc="native", disable=not progress):
+        for t, views in progress_bar(frames.items(), desc="native", disable=not progress):
             t0 = time.perf_counter()
             out = [(cam, T, *naive_image(scene, cam, t)) for cam, T in views]
             scores["native"].frame_s.append(time.perf_counter() - t0)
@@ -164,7 +164,7 @@ def bench_modes(seed: int = 0, config=None, rig_name: str = "nuscenes", scale: f
         warp(cam0.channel, cam0, T0, times[0])  # JIT / disk-cache load outside the timing
         warp_setup_s = time.perf_counter() - t0
         warp = WarpRenderer(scene, warp_config)
-        for t, views in tqdm(frames.items(), desc="warp", disable=not progress):
+        for t, views in progress_bar(frames.items(), desc="warp", disable=not progress):
             t0 = time.perf_counter()
             out = [(cam, T, warp(cam.channel, cam, T, t)) for cam, T in views]
             scores["warp"].frame_s.append(time.perf_counter() - t0)
@@ -179,7 +179,7 @@ def bench_modes(seed: int = 0, config=None, rig_name: str = "nuscenes", scale: f
         render_info: dict = {"status": "missing: nuav2.recon is not installed"}
         if with_render and _recon_available():
             render_fn, recon_s = _render_mode(scene, recon_preset, progress)
-            for t, views in tqdm(frames.items(), desc="render", disable=not progress):
+            for t, views in progress_bar(frames.items(), desc="render", disable=not progress):
                 t0 = time.perf_counter()
                 out = [(cam, T, np.asarray(render_fn(cam.channel, cam, T, t))) for cam, T in views]
                 scores["render"].frame_s.append(time.perf_counter() - t0)

@@ -156,7 +156,7 @@ def bench_case(w: int, h: int, n: int, repeats: int = 3, seed: int = 0, dense: b
 def run_raster_bench(cases: Iterable[tuple[int, int, int]], repeats: int = 3, dense: bool = True,
                      progress: bool = True) -> dict:
     """Benchmark every (w, h, n) case; returns the JSON-ready report."""
-    from tqdm import tqdm
+    from nuav2.progress import progress_bar
 
     cases = list(cases)
     load_before = os.getloadavg()[0]
@@ -165,7 +165,7 @@ def run_raster_bench(cases: Iterable[tuple[int, int, int]], repeats: int = 3, de
     _step(rasterize, warm, warm.K, 64, 48, _loss_weights(48, 64, 0), True)   # compile outside the cases
     jit_s = time.perf_counter() - t0
     results = [bench_case(w, h, n, repeats=repeats, dense=dense)
-               for w, h, n in tqdm(cases, desc="bench raster", disable=not progress)]
+               for w, h, n in progress_bar(cases, desc="bench raster", disable=not progress)]
     return {"bench": "raster", "scene": "synthetic street (ground, facades, cars, trees), forward camera",
             "threads": numba.get_num_threads(), "torch_threads": torch.get_num_threads(),
             "omp_wait_policy": nuav2.splat.OMP_WAIT_POLICY,

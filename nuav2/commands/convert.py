@@ -10,23 +10,34 @@ from pathlib import Path
 from nuav2.cli import group
 from nuav2.image_sources import MODES
 
+# Flags that only some modes use: given in another mode they are an error, not silently ignored.
+_TARGET_RIG_MODES = ("warp", "render", "truth")
+_MODE_FLAGS = {"rig": ("--rig", _TARGET_RIG_MODES), "scale": ("--scale", _TARGET_RIG_MODES),
+               "recon_preset": ("--recon-preset", ("render",)),
+               "min_confidence": ("--min-confidence", ("render",))}
+
+
+def _options(args: argparse.Namespace):  # -> nuav2.convert.ConvertOptions (imported lazily)
+    from nuav2.cli import UsageError
+    from nuav2.convert import ConvertOptions
+
+    for name, (flag, modes) in _MODE_FLAGS.items():
+        if getattr(args, name) is not None and args.mode not in modes:
+            raise UsageError(f"{flag} applies to --mode {' and '.join(modes)} only, not --mode {args.mode}")
+    given = {name: getattr(args, name) for name in _MODE_FLAGS if getattr(args, name) is not None}
+    return ConvertOptions(mode=args.mode, version=args.version, keyframe_hz=args.keyframe_hz,
+                          workers=args.workers, image_link=args.image_link,
+                          calibration_dir=args.calibration, require_cameras=not args.allow_missing_cameras,
+                          show_progress=not args.no_progress, **given)
+
 
 def _run(args: argparse.Namespace) -> int:
-    from converters.av2.errors import AV2LogError
-    from nuav2.convert import REPORT_FILE, ConvertError, ConvertOptions, convert_av2
+    from nuav2.convert import REPORT_FILE, convert_av2
 
-    options = ConvertOptions(mode=args.mode, version=args.version, keyframe_hz=args.keyframe_hz,
-                             workers=args.workers, image_link=args.image_link,
-                             calibration_dir=args.calibration, require_cameras=not args.allow_missing_cameras,
-                             show_progress=not args.no_progress, rig=args.rig, scale=args.scale,
-                             recon_preset=args.recon_preset, min_confidence=args.min_confidence)
-    try:
-        report = convert_av2(args.src, args.out, options)
-    except (ConvertError, AV2LogError) as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
+    report = convert_av2(args.src, args.out, _options(args))
     summary = {"dataroot": report.dataroot, "version": report.version, "converted": len(report.converted),
-               "resumed": len(report.resumed), "failed": len(report.failed),
+               "resumed": len(report.resumed), "merged_earlier": len(report.merged_earlier),
+               "failed": len(report.failed),
                "samples": report.table_counts.get("sample", 0), "report": str(Path(args.out) / REPORT_FILE)}
     print(json.dumps(summary))
     for f in report.failed:
@@ -48,15 +59,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "warp: fast depth-warp of the source images into the target rig; "
                         "render: Gaussian-splat reconstruction rendered in the target rig (nuAV2); "
                         "truth: a synthetic log's world rendered exactly in the target rig (the oracle)")
-    p.add_argument("--rig", default="nuscenes",
+    p.add_argument("--rig", default=None,
                    help="warp/render/truth: target rig, a name in rig_specs/ or a spec path "
-                        "(default: %(default)s)")
-    p.add_argument("--scale", type=float, default=1.0,
-                   help="warp/render/truth: target image resolution factor, e.g. 0.25 (default: %(default)s)")
-    p.add_argument("--min-confidence", type=float, default=0.0,
-                   help="render: leave out sample times where a target camera's confidence is below this")
-    p.add_argument("--recon-preset", default="default",
-                   help="render: reconstruction budget preset (see docs/reconstruction.md)")
+                        "(default: nuscenes)")
+    p.add_argument("--scale", type=float, default=None,
+                   help="warp/render/truth: target image resolution factor, e.g. 0.25 (default: 1)")
+    p.add_argument("--min-confidence", type=float, default=None,
+                   help="render: leave out sample times where a target camera's confidence is below this "
+                        "(default: 0)")
+    p.add_argument("--recon-preset", default=None,
+                   help="render: reconstruction budget preset (default: default; see docs/reconstruction.md)")
     p.add_argument("--version", default="v1.0-nuav2", help="table directory name (default: %(default)s)")
     p.add_argument("--keyframe-hz", type=float, default=None,
                    help="sample rate; default every LiDAR sweep (10 Hz); 2 gives nuScenes-like samples")

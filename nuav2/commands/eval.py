@@ -5,9 +5,11 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import sys
 
 log = logging.getLogger(__name__)
+
+
+DEFAULT_SPLITS = ("geo_val", "av2_val", "val", "mini_val", "all")  # --split default: the first present
 
 
 def format_table(result: dict) -> str:
@@ -25,33 +27,77 @@ def format_table(result: dict) -> str:
     lines.append(
         f"{'mAP (GT classes)':<30}" + "".join(f"{result['map_per_threshold'][t]:>10.4f}" for t in thr)
     )
-    lines.append(f"mAP (headline, all classes): {result['mAP']:.4f}")
+    classes = result["classes"]
+    lines.append(f"mAP (headline) over {len(classes)} classes ({', '.join(classes)}): {result['mAP']:.4f}")
+    if result.get("classes_left_out"):
+        lines.append(f"left out (no prediction in the result file): {', '.join(result['classes_left_out'])}")
     return "\n".join(lines)
+
+
+def resolve_split(dataroot: str, version: str, split: str | None) -> str:
+    """``split``, or the default (first of DEFAULT_SPLITS present); an unknown split is a UsageError."""
+    from nuav2.cli import UsageError, require_database
+    from nuav2.splits import available_splits
+
+    require_database(dataroot, version)
+    present = available_splits(dataroot, version)
+    if split is None:
+        split = next((s for s in DEFAULT_SPLITS if present.get(s)), None)
+        if split is None:
+            raise UsageError(f"--split: none of the default splits {list(DEFAULT_SPLITS)} is in {dataroot}/"
+                             f"{version}; splits present: {', '.join(sorted(present)) or 'none'}")
+        log.info("evaluating split %s (give --split to choose another)", split)
+    elif split not in present:
+        raise UsageError(f"--split {split}: not a split of {dataroot}/{version}; splits present: "
+                         f"{', '.join(sorted(present)) or 'none'}")
+    return split
+
+
+def choose_classes(preds: dict, classes: list[str] | None, pred_path: str) -> tuple[list[str], list[str]]:
+    """(classes to evaluate, classes left out): ``--classes`` if given, else those the file predicts."""
+    from nuav2.evaluate import MAP_CLASSES
+    from nuav2.evaluate.chamfer_ap import predicted_classes
+
+    if classes:
+        return list(classes), []
+    found, missing, unknown = predicted_classes(preds, MAP_CLASSES)
+    if unknown:
+        log.warning("%s: predicted class(es) %s have no GT class and are ignored", pred_path, unknown)
+    if not found:
+        log.warning("%s: no predictions of any class %s; all are evaluated (AP 0)", pred_path,
+                    list(MAP_CLASSES))
+        return list(MAP_CLASSES), []
+    if missing:
+        log.warning("%s: no prediction of class(es) %s: left out of the mAP (--classes includes them, "
+                    "as AP 0)", pred_path, missing)
+    return found, missing
 
 
 def _run(args: argparse.Namespace) -> int:
     from nuav2.atomic import atomic_write_json
+    from nuav2.cli import UsageError
     from nuav2.evaluate.chamfer_ap import evaluate_vectors, load_gt_file, load_predictions
 
     preds = load_predictions(args.pred)
+    classes, left_out = choose_classes(preds, args.classes, args.pred)
     if args.gt_json:
         gts = load_gt_file(args.gt_json)
         source = str(args.gt_json)
     else:
         if not args.dataroot or not args.version:
-            print("nuav2 eval: --dataroot and --version are required (or give --gt-json)", file=sys.stderr)
-            return 2
+            raise UsageError("--dataroot and --version are required (or give --gt-json)")
         from nuav2.maptr.vectorize import gt_vectors_for_split  # the map GT; never a cached file
 
-        gts = gt_vectors_for_split(args.dataroot, args.version, args.split, patch=tuple(args.patch))
-        source = f"{args.dataroot} {args.version} split {args.split} (from the map)"
+        split = resolve_split(args.dataroot, args.version, args.split)
+        gts = gt_vectors_for_split(args.dataroot, args.version, split, patch=tuple(args.patch))
+        source = f"{args.dataroot} {args.version} split {split} (from the map)"
     try:
         result = evaluate_vectors(
-            gts, preds, classes=args.classes, thresholds=args.thresholds, n_resample=args.n_resample
+            gts, preds, classes=classes, thresholds=args.thresholds, n_resample=args.n_resample
         )
     except ValueError as e:
-        print(f"nuav2 eval: {args.pred} against {source}: {e}", file=sys.stderr)
-        return 1
+        raise ValueError(f"{args.pred} against {source}: {e}") from e
+    result["classes_left_out"] = left_out
     result["gt_source"] = source
     result["predictions"] = str(args.pred)
     if result["n_samples_without_predictions"]:
@@ -73,7 +119,9 @@ def register(subparsers) -> None:
     p.add_argument("pred", help="predictions: MapTR nuscmap_results.json ({'meta', 'results': [...]})")
     p.add_argument("--dataroot", help="nuScenes-format dataroot whose map gives the GT")
     p.add_argument("--version", help="database version, e.g. v1.0-trainval")
-    p.add_argument("--split", default="val", help="split name (<version>/splits.json, else the devkit's)")
+    p.add_argument("--split", default=None,
+                   help="split name (<version>/splits.json, else the devkit's); default: the first present "
+                        f"of {', '.join(DEFAULT_SPLITS)}")
     p.add_argument(
         "--gt-json", help="evaluate against this MapTR GT file ({'GTs': [...]}) instead of the map"
     )
@@ -85,7 +133,9 @@ def register(subparsers) -> None:
         metavar=("FORWARD_M", "RIGHT_M"),
         help="GT patch size in the LIDAR_TOP frame (default 60 30)",
     )
-    p.add_argument("--classes", nargs="+", default=list(MAP_CLASSES))
+    p.add_argument("--classes", nargs="+", default=None,
+                   help=f"classes the mAP averages (default: those of {', '.join(MAP_CLASSES)} that the "
+                        "result file predicts at all; the others are left out with a warning)")
     p.add_argument("--thresholds", type=float, nargs="+", default=list(MAP_THRESHOLDS_M))
     p.add_argument("--n-resample", type=int, default=100, help="points per line for the chamfer distance")
     p.add_argument("--out", help="also write the result JSON here (atomically)")

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 
@@ -37,8 +38,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from nuav2.cli import require_database
     from nuav2.maptr.infos import export_infos
 
+    require_database(args.dataroot, args.version)
     written = export_infos(
         args.dataroot,
         args.version,
@@ -49,5 +52,10 @@ def run(args: argparse.Namespace) -> int:
         tuple(args.patch),
         args.path_root,
     )
+    from nuav2.devkit_compat import HOOK_DIR
+
     print(json.dumps({split: str(path) for split, path in written.items()}, indent=1))
+    # MapTR's own tools run in an older stack where nuav2 is not installed; this lets them open the maps.
+    print(f"MapTR's tools (nuscenes-devkit 1.1.x) open the av2-* map locations with PYTHONPATH={HOOK_DIR}",
+          file=sys.stderr)
     return 0

@@ -4,12 +4,26 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
+import logging
+
+log = logging.getLogger(__name__)
+
+
+def _warn_empty_holdout(result: dict, n_scenes: int, args: argparse.Namespace) -> None:
+    """Say so when val or test got no scene (few logs, or all of them close together)."""
+    empty = [k for k in ("val", "test") if not result.get(k)]
+    if empty:
+        log.warning("%s: no scene in %s (of %d scenes; %d discarded): too few scenes, or all within "
+                    "--min-distance %g m of each other; use more logs, a smaller --min-distance or --lists",
+                    args.dataroot, " and ".join(empty), n_scenes, len(result.get("discarded", [])),
+                    args.min_distance)
 
 
 def _run(args: argparse.Namespace) -> int:
     from nuav2 import splits as sp
+    from nuav2.cli import UsageError, require_database
 
+    require_database(args.dataroot, args.version)
     table = sp.read_scene_table(args.dataroot, args.version)
     scenes = sorted(table.positions)
     report: dict = {
@@ -22,8 +36,7 @@ def _run(args: argparse.Namespace) -> int:
     }
     if not args.report_only:
         if args.regions and args.lists:
-            print("nuav2 split: give at most one of --regions and --lists", file=sys.stderr)
-            return 2
+            raise UsageError("give at most one of --regions and --lists")
         if args.regions:
             regions, straddle = sp.load_regions(args.regions)
             result = sp.region_split(table.positions, table.city_of, regions, args.straddle or straddle)
@@ -43,6 +56,7 @@ def _run(args: argparse.Namespace) -> int:
                 "min_distance_m": args.min_distance,
                 "seed": args.seed,
             }
+        _warn_empty_holdout(result, len(scenes), args)
         report["new"] = {
             **method,
             **sp.split_summary(result, table, args.radius),

@@ -24,8 +24,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from nuav2.cli import require_database
     from nuav2.viz import render
 
+    require_database(args.dataroot, args.version)
     out = render(
         args.dataroot, args.version, args.sample, args.out, args.pred, args.score_thr, args.tile_height
     )

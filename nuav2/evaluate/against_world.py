@@ -41,7 +41,7 @@ class WrittenImage:
 
 
 def key_camera_images(dataroot: Path, version: str, log_offsets: dict[str, np.ndarray]) -> list[WrittenImage]:
-    """Key-frame camera images with city poses; ``log_offsets``: {log token: city_xy_offset}."""
+    """Key-frame camera images with city poses; ``log_offsets``: {log token: city_offset (x, y, z)}."""
     root = Path(dataroot) / version
 
     def table(name: str) -> dict[str, dict]:
@@ -60,7 +60,7 @@ def key_camera_images(dataroot: Path, version: str, log_offsets: dict[str, np.nd
         pose = poses[sd["ego_pose_token"]]
         global_T_ego = T_from_quat_trans(pose["rotation"], pose["translation"])
         ego_T_cam = T_from_quat_trans(calib["rotation"], calib["translation"])
-        city_T_cam = translation_T(offset[0], offset[1]) @ global_T_ego @ ego_T_cam
+        city_T_cam = translation_T(*offset) @ global_T_ego @ ego_T_cam
         cam = CameraSpec(sensor["channel"], sd["width"], sd["height"], np.asarray(calib["camera_intrinsic"]),
                          ego_T_cam)
         out.append(WrittenImage(sensor["channel"], Path(dataroot) / sd["filename"], cam, city_T_cam,
@@ -83,6 +83,8 @@ def score_against_world(images: list[WrittenImage], world, every: int = 1) -> di
 
 
 def log_offsets(dataroot: Path, version: str) -> dict[str, np.ndarray]:
-    """{log token: city_xy_offset} from the converter's ``nuav2_logs.json`` sidecar."""
-    logs = json.loads((Path(dataroot) / version / "nuav2_logs.json").read_text())
-    return {rec["log_token"]: np.asarray(rec["city_xy_offset"], dtype=np.float64) for rec in logs}
+    """{log token: city_offset (x, y, z)} from the converter's ``nuav2_logs.json`` sidecar."""
+    from nuav2.nuscenes_db.map_frame import city_offset_of
+
+    path = Path(dataroot) / version / "nuav2_logs.json"
+    return {rec["log_token"]: city_offset_of(rec, str(path)) for rec in json.loads(path.read_text())}

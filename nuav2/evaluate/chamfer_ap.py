@@ -464,6 +464,20 @@ def summarize(
     return out
 
 
+def predicted_classes(
+    preds: PredVectors, known: Sequence[str] = DEFAULT_CLASSES
+) -> tuple[list[str], list[str], list[str]]:
+    """Which classes a result file predicts: (known classes with predictions, in ``known`` order;
+    known classes without a single prediction; predicted classes outside ``known``).
+
+    A 3-class model (MapTRv2 without centerlines) has no centerline predictions: averaging that
+    class in as AP 0 would score it 25 % too low, so callers evaluate the first list.
+    """
+    seen = {vec[0] for vecs in preds.values() for vec in vecs}
+    return ([c for c in known if c in seen], [c for c in known if c not in seen],
+            sorted(str(c) for c in seen - set(known)))
+
+
 def _parse_vector(vec, where: str, is_pred: bool):
     if not isinstance(vec, dict) or "pts" not in vec or "cls_name" not in vec:
         raise ValueError(f"{where}: each vector needs 'pts' and 'cls_name'")

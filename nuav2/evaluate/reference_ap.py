@@ -15,7 +15,6 @@ from collections.abc import Sequence
 import numpy as np
 import shapely
 from scipy.spatial import distance
-from tqdm import tqdm
 
 from nuav2.evaluate.chamfer_ap import (
     BUFFER_M,
@@ -27,6 +26,7 @@ from nuav2.evaluate.chamfer_ap import (
     PredVectors,
     summarize,
 )
+from nuav2.progress import progress_bar
 
 
 def _resample(pts: np.ndarray, n: int) -> np.ndarray:
@@ -111,7 +111,8 @@ def reference_evaluate(
         ranked: list[tuple[float, str, bytes, int]] = []  # (-score, token, raw bytes, TP flags key)
         flags: list[list[int]] = []
         n_gt = 0
-        for token in tqdm(sorted(gts), desc=f"reference AP {name}", unit="sample", disable=not progress):
+        for token in progress_bar(sorted(gts), desc=f"reference AP {name}", unit="sample",
+                                  disable=not progress):
             gt_lines = [
                 _resample(np.asarray(p, dtype=np.float64), n_resample)
                 for cls, p in gts[token]

@@ -189,7 +189,7 @@ def split_infos(
     progress: bool = True,
 ) -> list[dict]:
     """Info records of every keyframe of ``split``, scene by scene in time order."""
-    from tqdm import tqdm
+    from nuav2.progress import progress_bar
 
     gt = gt or MapGT(nusc.dataroot)
     jobs = [
@@ -198,7 +198,7 @@ def split_infos(
         for i, tok in enumerate(scene_sample_tokens(nusc, name))
     ]
     infos = []
-    for tok, frame_idx in tqdm(jobs, desc=f"infos {split}", unit="sample", disable=not progress):
+    for tok, frame_idx in progress_bar(jobs, desc=f"infos {split}", unit="sample", disable=not progress):
         info = sample_info(nusc, tok, frame_idx, max_sweeps, cameras, path_root)
         info["annotation"] = annotation_of(gt.sample_vectors(nusc, tok))
         infos.append(info)

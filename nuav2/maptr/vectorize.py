@@ -462,11 +462,12 @@ def gt_vectors_for_split(
     """{sample_token: [(class, (N, 2) float64 polyline in LIDAR_TOP xy)]} for every keyframe of
     ``split`` (from ``<version>/splits.json``, else the devkit's built-in lists), unresampled."""
     from nuscenes.nuscenes import NuScenes
-    from tqdm import tqdm
 
     from nuav2.maptr.subsets import split_sample_tokens
+    from nuav2.progress import progress_bar
 
     nusc = NuScenes(version=version, dataroot=str(dataroot), verbose=False)
     gt = MapGT(dataroot, patch)
     tokens = split_sample_tokens(nusc, split)
-    return {tok: gt.sample_vectors(nusc, tok) for tok in tqdm(tokens, desc=f"map GT {split}", unit="sample")}
+    bar = progress_bar(tokens, desc=f"map GT {split}", unit="sample")
+    return {tok: gt.sample_vectors(nusc, tok) for tok in bar}

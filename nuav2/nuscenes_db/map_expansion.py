@@ -30,7 +30,7 @@ from shapely.geometry import Polygon
 from nuav2.atomic import atomic_write_bytes
 from nuav2.geometry import F64
 from nuav2.nuscenes_db.map_dividers import extract_dividers
-from nuav2.nuscenes_db.map_frame import LOCATION_RE, MARGIN_M, MapFrame
+from nuav2.nuscenes_db.map_frame import LOCATION_RE, MARGIN_M, OFFSET_KEY, MapFrame
 from nuav2.nuscenes_db.map_geometry_tables import GeometryTables, map_token
 from nuav2.nuscenes_db.map_lanes import build_lane_records, segment_type
 from nuav2.nuscenes_db.map_mask import (
@@ -78,13 +78,13 @@ def _check_finite(vector_map: VectorMap) -> None:
 
 def _shift(xyz: np.ndarray, offset: F64) -> F64:
     out = np.array(xyz, dtype=np.float64, copy=True).reshape(len(xyz), -1)
-    out[:, :2] -= offset
+    out -= offset[: out.shape[1]]
     return out
 
 
 def to_global(vector_map: VectorMap, frame: MapFrame) -> VectorMap:
-    """The map with x, y moved from the city frame to the location's global frame (z kept)."""
-    off = np.asarray(frame.city_xy_offset, dtype=np.float64)
+    """The map moved from the city frame to the location's global frame (x, y and, where given, z)."""
+    off = np.asarray(frame.city_offset, dtype=np.float64)
     lanes = {i: dataclasses.replace(ln, left_boundary=_shift(ln.left_boundary, off),
                                     right_boundary=_shift(ln.right_boundary, off))
              for i, ln in vector_map.lane_segments.items()}
@@ -131,7 +131,7 @@ def build_map_expansion(vector_map: VectorMap, frame: MapFrame,
     xy = _all_xy(vm)
     if len(xy) and xy.min() < 0:
         raise ValueError(f"location {frame.location}: map reaches global ({xy.min(axis=0).tolist()}) < 0; "
-                         f"city_xy_offset {frame.city_xy_offset.tolist()} must be below every map vertex")
+                         f"city_offset {frame.city_offset.tolist()} must be below every map vertex")
     loc = frame.location
     tables = GeometryTables(loc)
     stats: dict[str, int] = {"polygons_repaired": 0, "lanes_dropped": 0, "crossings_dropped": 0,
@@ -228,8 +228,9 @@ def build_map_expansion(vector_map: VectorMap, frame: MapFrame,
     expansion["connectivity"] = lanes.connectivity
     expansion["nuav2"] = {
         "source": "av2", "location": loc, "city_name": vector_map.city_name,
-        "city_xy_offset": [float(v) for v in frame.city_xy_offset],
-        "note": "city x, y = global x, y + city_xy_offset; z is not stored",
+        OFFSET_KEY: [float(v) for v in frame.city_offset],
+        "note": "city = global + city_offset (x, y, z); the map is 2-D, its z = 0 is the ground "
+                "under the log's first pose",
         "semantic_prior": semantic_prior_filename(loc), "semantic_prior_resolution_m": RESOLUTION_M,
     }
     check_polygons_valid(expansion)

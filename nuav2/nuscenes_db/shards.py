@@ -69,6 +69,14 @@ def is_complete(path: Path, fingerprint: str) -> bool:
             and all((Path(path) / f"{t}.json").is_file() for t in PER_LOG_TABLES))
 
 
+def existing_shards(dataroot: Path, version: str) -> dict[str, Path]:
+    """{log id: shard directory} of every shard under ``dataroot`` for ``version`` (temp dirs skipped)."""
+    root = shard_root(dataroot, version)
+    if not root.is_dir():
+        return {}
+    return {p.name: p for p in sorted(root.iterdir()) if p.is_dir() and _SAFE_NAME.match(p.name)}
+
+
 def read_table(path: Path, table: str) -> list[dict]:
     f = Path(path) / f"{table}.json"
     try:

@@ -5,8 +5,9 @@ LIDAR_TOP in the output ego frame, whose origin is at ground level) and an
 :class:`~nuav2.nuscenes_db.images.ImageSource`; everything else is the same:
 
 - ego poses of the output vehicle frame: ``city_T_egoT = city_T_egoS(t) @ egoS_T_egoT``, moved
-  into the log's nuScenes global frame (the city frame shifted by ``map_frame``), one per
-  sample_data at its own timestamp;
+  into the log's nuScenes global frame (the city frame minus the rigid offset of ``map_frame``:
+  whole metres in x, y and the ground height under the first pose in z), one per sample_data
+  at its own timestamp;
 - the virtual LIDAR_TOP sweep re-expressed in the output rig's LIDAR_TOP frame;
 - annotations at the samples, in the global frame.
 
@@ -21,7 +22,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
 
 from nuav2.geometry import F64, egoS_T_egoT_from_heights
 from nuav2.nuscenes_db import annotations as ann_mod
@@ -29,16 +29,17 @@ from nuav2.nuscenes_db import records as rec
 from nuav2.nuscenes_db.images import CameraShot, ImageSource
 from nuav2.nuscenes_db.keyframes import KEY_IMAGE_TOLERANCE_NS, Timeline, build_timeline, plan_samples
 from nuav2.nuscenes_db.lidar_top import lidar_T_egoS, sweep_to_pcd_rows, write_pcd_bin
-from nuav2.nuscenes_db.map_frame import MapFrame, map_frame_for
+from nuav2.nuscenes_db.map_frame import OFFSET_KEY, MapFrame, map_frame_for
 from nuav2.nuscenes_db.tables import PER_LOG_TABLES
 from nuav2.nuscenes_db.tokens import make_token
+from nuav2.progress import progress_bar
 from nuav2.rig import Rig
 from nuav2.scene import SceneLog, VectorMap
 
 log = logging.getLogger(__name__)
 
 # Bump when what a shard holds changes, so old shards are redone instead of merged.
-WRITER_FORMAT = 1
+WRITER_FORMAT = 2  # 2: global frame shifted in z too (city_offset [x, y, z])
 
 
 @dataclass(frozen=True)
@@ -68,6 +69,21 @@ def map_points_city_xy(scene: SceneLog) -> F64:
         pts += [pc.polygon[:, :2] for pc in vm.ped_crossings.values()]
         pts += [da.boundary[:, :2] for da in vm.drivable_areas.values()]
     return np.concatenate([np.asarray(p, dtype=np.float64).reshape(-1, 2) for p in pts])
+
+
+def ground_z_city(scene: SceneLog) -> float:
+    """Ground height under the ego at the log's first pose: the global frame's z = 0.
+
+    From the ground-height raster where the log has one and it covers that point; otherwise the
+    first pose's height minus the source rig's origin height (the output ego origin is on the
+    ground, so its first pose then sits at global z = 0 exactly). Rounded to 1 mm.
+    """
+    city_xyz = np.asarray(scene.city_T_ego[0, :3, 3], dtype=np.float64)
+    if scene.ground_height is not None:
+        z = float(np.asarray(scene.ground_height.height_at(city_xyz[None, :2])).reshape(-1)[0])
+        if np.isfinite(z):
+            return round(z, 3)
+    return round(float(city_xyz[2] - scene.rig.origin_height_m), 3)
 
 
 def write_map(scene: SceneLog, frame: MapFrame, dataroot: Path) -> str:
@@ -126,7 +142,7 @@ def _write_log(scene: SceneLog, out_rig: Rig, images: ImageSource, files: _Files
     lidar_ch = out_rig.keyframe_lidar
     egoT_T_lidar = out_rig.lidar(lidar_ch).ego_T_lidar
     egoS_T_egoT = egoS_T_egoT_from_heights(scene.rig.origin_height_m, out_rig.origin_height_m)
-    frame = map_frame_for(scene.city, log_id, map_points_city_xy(scene))
+    frame = map_frame_for(scene.city, log_id, map_points_city_xy(scene), ground_z_city(scene))
     global_T_city = frame.global_T_city
 
     # Timeline: which sweeps are samples, which images are key frames, unique µs labels.
@@ -136,6 +152,8 @@ def _write_log(scene: SceneLog, out_rig: Rig, images: ImageSource, files: _Files
     shots = images.shots(scene, out_rig, sweep_ns[key_idx])
     timeline = build_timeline(lidar_ch, sweep_ns, key_idx, _camera_times(shots),
                               options.key_image_tolerance_ns)
+    log.info("log %s: %d samples from %d sweeps, %d cameras (%s)", log_id, timeline.num_samples,
+             len(sweep_ns), len(shots), ", ".join(shots) or "none")
 
     scene_token = make_token(log_id, "scene", "")
     log_token = make_token(log_id, "log", "")
@@ -188,7 +206,7 @@ def _write_log(scene: SceneLog, out_rig: Rig, images: ImageSource, files: _Files
     meta = {
         "log_id": log_id, "source": scene.source, "split": scene.split, "city": scene.city,
         "city_frame": scene.city_frame, "location": frame.location,
-        "city_xy_offset": [float(v) for v in frame.city_xy_offset],
+        OFFSET_KEY: [float(v) for v in frame.city_offset],
         "source_rig": scene.rig.name, "source_origin_height_m": float(scene.rig.origin_height_m),
         "output_rig": out_rig.name, "output_origin_height_m": float(out_rig.origin_height_m),
         "log_token": log_token, "scene_token": scene_token,
@@ -205,8 +223,8 @@ def _write_lidar_top(scene: SceneLog, timeline: Timeline, lidar_ch: str, lidar_T
     """Each source sweep moved into the output LIDAR_TOP frame; fills unknown box point counts
     (``boxes.num_lidar_pts == -1``) from the key sweeps. Returns {(channel, index): filename}."""
     filenames: dict[tuple[str, int], str] = {}
-    for f in tqdm(timeline.frames[lidar_ch], desc=f"{scene.log_id[:8]} {lidar_ch}", unit="sweep", leave=False,
-                  disable=not options.show_progress):
+    for f in progress_bar(timeline.frames[lidar_ch], desc=f"{scene.log_id[:8]} {lidar_ch}", unit="sweep",
+                          leave=False, disable=not options.show_progress):
         points = scene.sweep(scene.lidar_sweeps[f.index])
         rel = data_filename(scene.log_id, lidar_ch, f.timestamp_us, f.is_key_frame, ".pcd.bin")
         write_pcd_bin(files.path(rel), sweep_to_pcd_rows(points, lidar_T_ego))
@@ -227,8 +245,8 @@ def _write_cameras(scene: SceneLog, timeline: Timeline, out_rig: Rig, images: Im
     # Time-major order: a renderer that caches source views reuses them across target cameras.
     cam_frames = sorted((f for ch in shots for f in timeline.frames[ch]),
                         key=lambda f: (f.timestamp_us, f.channel))
-    for f in tqdm(cam_frames, desc=f"{scene.log_id[:8]} cameras", unit="img", leave=False,
-                  disable=not options.show_progress or not cam_frames):
+    for f in progress_bar(cam_frames, desc=f"{scene.log_id[:8]} cameras", unit="img", leave=False,
+                          disable=not options.show_progress or not cam_frames):
         shot = shots[f.channel][f.index]
         cam = out_rig.camera(f.channel)
         rel = data_filename(scene.log_id, f.channel, f.timestamp_us, f.is_key_frame, images.extension(shot))

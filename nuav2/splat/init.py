@@ -18,9 +18,9 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from tqdm import tqdm
 
 from nuav2.geometry import F64, T_from_quat_trans, T_inverse
+from nuav2.progress import progress_bar
 from nuav2.rig import CameraSpec
 from nuav2.scene import SceneLog
 from nuav2.splat.scene_model import TrackPoses
@@ -187,7 +187,7 @@ def aggregate_lidar(scene: SceneLog, scene_T_city: F64, moving: dict[str, TrackP
     sweeps = scene.lidar_sweeps[:: max(1, cfg.sweep_stride)]
     lo, hi = np.asarray(cfg.ego_box_min), np.asarray(cfg.ego_box_max)
     n_points = 0
-    for ref in tqdm(sweeps, desc="lidar", unit="sweep", disable=not progress, leave=False):
+    for ref in progress_bar(sweeps, desc="lidar", unit="sweep", disable=not progress, leave=False):
         pts = scene.sweep(ref).xyz_ego
         pts = pts[np.all(np.isfinite(pts), axis=1)]
         pts = pts[~np.all((pts >= lo) & (pts <= hi), axis=1)]
@@ -389,7 +389,7 @@ def colour_seeds(background: F64, objects: dict[str, F64], tracks: dict[str, Tra
     seen = np.zeros(n, np.int32)
     sky_masks: dict[int, np.ndarray] = {}
     min_sin = np.sin(np.radians(cfg.sky_min_elevation_deg))
-    for view in tqdm(views, desc="colour seeds", unit="img", disable=not progress, leave=False):
+    for view in progress_bar(views, desc="colour seeds", unit="img", disable=not progress, leave=False):
         parts = [background]
         for tid in objects:
             tr = tracks[tid]

@@ -67,12 +67,12 @@ class SourceCoverage:
                    progress: bool = False) -> SourceCoverage:
         """Coverage of a trained ``SplatScene`` by its source ``views`` (``init.SourceView``s);
         ``with_depth`` renders each view's depth map for the occlusion test."""
-        from tqdm import tqdm
+        from nuav2.progress import progress_bar
 
         scene_T_city = splat.scene_T_city
         cam_T_scene, Ks, sizes, depths = [], [], [], []
-        for v in tqdm(views, desc="source depth", unit="img", disable=not progress or not with_depth,
-                      leave=False):
+        for v in progress_bar(views, desc="source depth", unit="img", disable=not progress or not with_depth,
+                              leave=False):
             cam_T_scene.append(T_inverse(scene_T_city @ v.city_T_cam))
             Ks.append(v.cam.K)
             sizes.append((v.cam.width, v.cam.height))

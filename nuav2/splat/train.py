@@ -20,10 +20,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 import torch
-from tqdm import tqdm
 
 from nuav2.atomic import atomic_write_bytes
 from nuav2.geometry import F64, T_inverse
+from nuav2.progress import progress_bar
 from nuav2.scene import SceneLog
 from nuav2.splat.densify import DensifyConfig, DensifyStrategy
 from nuav2.splat.init import SourceView, project
@@ -267,7 +267,8 @@ class Trainer:
         torch.set_num_threads(cfg.threads)
         t0 = time.perf_counter()
         ema_loss, ema_psnr, stopped = None, None, False
-        bar = tqdm(total=cfg.iterations, initial=self.step, desc="train", unit="it", disable=not progress)
+        bar = progress_bar(total=cfg.iterations, initial=self.step, desc="train", unit="it",
+                           disable=not progress)
         try:
             while self.step < end:
                 loss, p = self.train_step()

@@ -2,6 +2,14 @@
 
 The defaults make a CI-sized log (2 s of driving, 1/8-resolution cameras, ~30k lidar points
 per sweep); benchmarks raise ``seconds``, ``image_scale`` and ``lidar_azimuth_steps``.
+
+Realism is a ladder of presets (``PRESETS``): ``easy`` is the original world (flat ground, one
+intersection, box actors, fixed light, ideal sensors and labels), ``medium`` breaks the
+geometric assumptions (relief, varied layouts and ego manoeuvres, content that is not its box,
+noisy lidar and labels) and ``hard`` also the photometric ones (cast shadows and a structured
+sky, per-camera exposure / white balance / vignetting / noise). Each realism factor is one
+boolean field (``FACTORS``); ``None`` takes the preset's value, so an ablation is a loop:
+``SynthConfig.for_preset("easy", relief=True)``.
 """
 
 from __future__ import annotations
@@ -11,10 +19,26 @@ from dataclasses import asdict, dataclass, fields
 
 from av2.geometry.utm import CityName
 
+PRESETS = ("easy", "medium", "hard")
+# One switch per realism factor, in the order the ablation adds them.
+FACTORS = ("relief", "layouts", "content", "shadows", "exposure", "lidar_noise", "label_noise")
+PRESET_FACTORS = {
+    "easy": frozenset(),
+    "medium": frozenset({"relief", "layouts", "content", "lidar_noise", "label_noise"}),
+    "hard": frozenset(FACTORS),
+}
+LAYOUTS = ("four_way", "arterial", "t_junction", "curved", "y_junction")
+# Fields of the original (easy-only) config: always serialised. Later fields are serialised only
+# when they differ from what the preset implies, so an easy config's dict (and with it the log id
+# and every byte of the log) is what it was before the presets existed.
+_LEGACY_FIELDS = ("seconds", "image_scale", "lidar_azimuth_steps", "lidar_max_range_m", "n_parked",
+                  "n_moving", "n_pedestrians", "ego_speed_mps", "lane_change", "include_stereo",
+                  "texture_res_m", "map_margin_m", "city", "jpeg_quality")
+
 
 @dataclass(frozen=True)
 class SynthConfig:
-    """Size and content of one synthetic AV2 log (the seed picks the layout, this picks the scale)."""
+    """Size, content and realism of one synthetic AV2 log (the seed draws the rest)."""
 
     seconds: float = 2.0  # driving time; one lidar sweep per 0.1 s
     image_scale: float = 0.125  # AV2 camera resolution factor (0.125 -> 256x194)
@@ -23,13 +47,24 @@ class SynthConfig:
     n_parked: int = 6
     n_moving: int = 3
     n_pedestrians: int = 1
-    ego_speed_mps: float | None = None  # None: drawn from the seed in [8, 10]
+    ego_speed_mps: float | None = None  # None: drawn from the seed (easy: [8, 10]; layouts: cruise [7, 13])
     lane_change: bool = True  # ego drifts from the inner to the outer lane (gentle, 5 s manoeuvre)
     include_stereo: bool = False  # also write the two stereo_front cameras
     texture_res_m: float = 0.05  # metres per pixel of the ground (BEV) texture
     map_margin_m: float = 60.0  # map and world extend this far beyond the ego path
     city: str = "PIT"
     jpeg_quality: int = 92
+    preset: str = "easy"  # the rung the factor switches default to
+    layout: str | None = None  # road layout (LAYOUTS); None: four_way, or drawn from the seed with `layouts`
+    relief: bool | None = None  # terrain with grades, crests, sags, cross-fall (ego pitches and rolls)
+    layouts: bool | None = None  # layouts drawn from the seed; ego turns, changes lanes, stops and starts
+    content: bool | None = None  # shaped vehicles of several classes, walking pedestrians, cyclists,
+    #                              street furniture, trees, kerb steps, varied facades
+    shadows: bool | None = None  # sun with cast shadows, sky with sun glow and clouds
+    exposure: bool | None = None  # log cameras: drifting auto-exposure, white balance, vignetting, noise
+    lidar_noise: bool | None = None  # range noise, grazing / dark-surface dropouts
+    label_noise: bool | None = None  # per-track offsets, per-frame jitter, size errors, missed far objects
+    n_cyclists: int = 2  # cyclists (with `content`)
 
     def __post_init__(self) -> None:
         def bad(name: str, why: str) -> ValueError:
@@ -41,7 +76,7 @@ class SynthConfig:
                 raise bad(name, "must be a finite number > 0")
         if round(self.seconds * 10) < 1:
             raise bad("seconds", "must give at least one 10 Hz sweep (>= 0.05)")
-        for name in ("n_parked", "n_moving", "n_pedestrians"):
+        for name in ("n_parked", "n_moving", "n_pedestrians", "n_cyclists"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < 0:
                 raise bad(name, "must be an integer >= 0")
@@ -55,13 +90,39 @@ class SynthConfig:
             raise bad("city", f"must be an AV2 city code {[c.value for c in CityName]}")
         if not isinstance(self.jpeg_quality, int) or not 1 <= self.jpeg_quality <= 100:
             raise bad("jpeg_quality", "must be an integer in [1, 100]")
+        if self.preset not in PRESETS:
+            raise bad("preset", f"must be one of {PRESETS}")
+        if self.layout is not None and self.layout not in LAYOUTS:
+            raise bad("layout", f"must be None or one of {LAYOUTS}")
+        for name in FACTORS:
+            v = getattr(self, name)
+            if v is None:  # resolve from the preset; the dataclass stays frozen for everyone else
+                object.__setattr__(self, name, name in PRESET_FACTORS[self.preset])
+            elif not isinstance(v, bool):
+                raise bad(name, "must be None or a bool")
+
+    @classmethod
+    def for_preset(cls, name: str, **overrides) -> SynthConfig:
+        """The config of preset ``name`` (``PRESETS``), with any field overridden."""
+        if name not in PRESETS:
+            raise ValueError(f"preset must be one of {PRESETS}, got {name!r}")
+        return cls(preset=name, **overrides)
+
+    @property
+    def factors(self) -> frozenset[str]:
+        """The realism factors switched on."""
+        return frozenset(f for f in FACTORS if getattr(self, f))
 
     @property
     def n_sweeps(self) -> int:
         return int(round(self.seconds * 10))
 
     def to_dict(self) -> dict:
-        return asdict(self)
+        """Legacy fields always; newer ones only where they differ from the preset's implied value."""
+        d = asdict(self)
+        implied = {f.name: f.default for f in fields(self)}
+        implied.update({f: f in PRESET_FACTORS[self.preset] for f in FACTORS})
+        return {k: v for k, v in d.items() if k in _LEGACY_FIELDS or v != implied[k]}
 
     @staticmethod
     def from_dict(d: dict, src: str = "<dict>") -> SynthConfig:

@@ -3,8 +3,11 @@
 Layout (``out_dir/<split>/<log_id>/``), schemas and dtypes follow av2_format.md: poses with
 one row per sensor timestamp, calibration for the ring cameras (+ stereo if configured) and
 both lidars at the chosen image scale, float16 ego-frame lidar sweeps, cuboid annotations
-(train/val only) with ``num_interior_pts`` counted from the sweep, JPEGs at each camera's own
-timestamp, and the map directory. The log directory appears atomically (temp dir + rename).
+(train/val only) with ``num_interior_pts`` counted from the sweep (exact, or with the
+``label_noise`` factor as imperfect as human labels, labels.py), JPEGs at each camera's own
+timestamp (the clean render, or with the ``exposure`` factor through each camera's exposure,
+white balance, vignetting and noise, camera_effects.py), and the map directory. The log
+directory appears atomically (temp dir + rename).
 """
 
 from __future__ import annotations
@@ -18,11 +21,13 @@ import cv2
 import numpy as np
 import pyarrow as pa
 import pyarrow.feather as feather
-from tqdm import tqdm
 
 from nuav2.atomic import atomic_directory
 from nuav2.geometry import T_inverse, T_to_quat_trans
+from nuav2.progress import progress_bar
+from nuav2.synth.camera_effects import EFFECTS_JPEG_QUALITY, CameraEffects
 from nuav2.synth.config import SynthConfig
+from nuav2.synth.labels import label_errors
 from nuav2.synth.map_json import write_map_dir
 from nuav2.synth.raycast import cast_sweep
 from nuav2.synth.render import render_view
@@ -85,20 +90,27 @@ def sweep_table(ret) -> pa.Table:
 
 
 def annotation_rows(world: SyntheticWorld, timestamp_ns: int, box_hits: np.ndarray) -> dict[str, list]:
-    """Cuboids of every actor in the ego frame at a sweep; ``box_hits`` are the sweep's box indices."""
+    """Cuboids of the actors in the ego frame at a sweep; ``box_hits`` are the sweep's solid indices."""
     poses = world.actor_poses_at(timestamp_ns)
     ego_T_city = T_inverse(world.city_T_ego_at(timestamp_ns))
     ego_T_box = ego_T_city[None] @ poses.city_T_box
-    q, t = T_to_quat_trans(ego_T_box)
-    first_actor = len(world.buildings)
-    counts = np.bincount(box_hits[box_hits >= first_actor] - first_actor, minlength=len(world.actors))
+    owner = world.boxes_at(timestamp_ns).owner[box_hits[box_hits >= 0]]
     k = len(poses.track_uuid)
-    return {"timestamp_ns": [int(timestamp_ns)] * k, "track_uuid": poses.track_uuid,
-            "category": poses.category,
-            "length_m": poses.size_lwh[:, 0].tolist(), "width_m": poses.size_lwh[:, 1].tolist(),
-            "height_m": poses.size_lwh[:, 2].tolist(),
+    counts = np.bincount(owner[owner >= 0], minlength=k)[:k].astype(np.int64)
+    size = poses.size_lwh
+    keep = np.arange(k)
+    if world.config.label_noise:
+        ego_T_box, size, kept = label_errors(world.seed, poses.track_uuid, timestamp_ns, ego_T_box, size,
+                                             counts)
+        keep = np.flatnonzero(kept)
+    q, t = T_to_quat_trans(ego_T_box[keep])
+    n = len(keep)
+    return {"timestamp_ns": [int(timestamp_ns)] * n, "track_uuid": [poses.track_uuid[i] for i in keep],
+            "category": [poses.category[i] for i in keep],
+            "length_m": size[keep, 0].tolist(), "width_m": size[keep, 1].tolist(),
+            "height_m": size[keep, 2].tolist(),
             **{c: v.tolist() for c, v in zip(_POSE_COLS, np.column_stack([q, t]).T)},
-            "num_interior_pts": counts[:k].astype(np.int64).tolist()}
+            "num_interior_pts": counts[keep].tolist()}
 
 
 def annotations_table(rows: list[dict[str, list]]) -> pa.Table:
@@ -128,11 +140,13 @@ def write_log(world: SyntheticWorld, log_dir: Path, split: str = "train", progre
     _write_feather(log_dir / "city_SE3_egovehicle.feather", poses_table(world))
     write_map_dir(world, log_dir / "map")
     cams = [world.rig.camera(ch) for ch in world.camera_channels]
+    effects = CameraEffects(world.seed, world.camera_channels) if cfg.exposure else None
+    quality = min(cfg.jpeg_quality, EFFECTS_JPEG_QUALITY) if cfg.exposure else cfg.jpeg_quality
     rows = []
     t_start = time.perf_counter()
     n_points = 0
-    for k in tqdm(range(len(tl.sweeps_ns)), desc=f"synth {world.log_id[:8]}", unit="frame",
-                  disable=not progress):
+    for k in progress_bar(range(len(tl.sweeps_ns)), desc=f"synth {world.log_id[:8]}", unit="frame",
+                          disable=not progress):
         ts = int(tl.sweeps_ns[k])
         ret = cast_sweep(world, ts)
         n_points += len(ret.offset_ns)
@@ -142,8 +156,10 @@ def write_log(world: SyntheticWorld, log_dir: Path, split: str = "train", progre
             for img_ts in tl.images_ns[cam.channel][2 * k: 2 * k + 2]:
                 city_T_cam = world.city_T_ego_at(int(img_ts)) @ cam.ego_T_cam
                 img = render_view(world, cam, city_T_cam, int(img_ts))
+                if effects is not None:
+                    img = effects.apply(cam, img, float(world.seconds_since_start(int(img_ts))), int(img_ts))
                 _write(log_dir / "sensors" / "cameras" / cam.channel / f"{int(img_ts)}.jpg",
-                       encode_jpeg(img, cfg.jpeg_quality))
+                       encode_jpeg(img, quality))
     frames_s = time.perf_counter() - t_start
     if split != "test":  # AV2's test split ships without labels
         _write_feather(log_dir / "annotations.feather", annotations_table(rows))

@@ -25,9 +25,15 @@ _SHIFT = 4
 
 
 def _points(xy_local: np.ndarray, world: SyntheticWorld) -> list[dict]:
-    xy = np.asarray(xy_local, np.float64)[:, :2] + world.origin_city[:2]
-    z = round(world.ground_z_city, 2)
-    return [{"x": round(float(x), 2), "y": round(float(y), 2), "z": z} for x, y in xy]
+    """City-frame points on the road surface (the relief; the kerb step is off the road)."""
+    xy_local = np.asarray(xy_local, np.float64)[:, :2]
+    xy = xy_local + world.origin_city[:2]
+    if world.terrain.flat:
+        z = round(world.ground_z_city, 2)
+        return [{"x": round(float(x), 2), "y": round(float(y), 2), "z": z} for x, y in xy]
+    zs = world.ground_z_city + world.terrain.relief(xy_local)
+    return [{"x": round(float(x), 2), "y": round(float(y), 2), "z": round(float(z), 2)}
+            for (x, y), z in zip(xy, zs)]
 
 
 def vector_map_dict(world: SyntheticWorld) -> dict:
@@ -65,7 +71,12 @@ def ground_height_raster(world: SyntheticWorld) -> tuple[np.ndarray, dict]:
         # Cell coordinates: cell i covers [i, i + 1), so its centre sits at i + 0.5.
         ring = (np.asarray(poly.exterior.coords) + origin_xy - (cx0, cy0)) * s
         cv2.fillPoly(mask, [np.round((ring - 0.5) * (1 << _SHIFT)).astype(np.int32)], 1, cv2.LINE_8, _SHIFT)
-    z = np.float16(world.ground_z_city)
+    if world.terrain.flat:
+        z = np.float16(world.ground_z_city)
+    else:  # the surface at each cell centre, kerbs and sidewalks included, as AV2's raster has them
+        jj, ii = np.meshgrid(np.arange(w), np.arange(h))
+        centres = np.column_stack([(jj.ravel() + 0.5) / s + cx0, (ii.ravel() + 0.5) / s + cy0]) - origin_xy
+        z = (world.ground_z_city + world.terrain.height(centres)).reshape(h, w)
     heights = np.where(mask.astype(bool), z, np.float16(np.nan)).astype(np.float16)
     sim2 = {"R": [1.0, 0.0, 0.0, 1.0], "t": [-cx0, -cy0], "s": s}
     return heights, sim2

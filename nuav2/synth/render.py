@@ -1,13 +1,17 @@
 """Ground-truth camera images of the synthetic world, for any pinhole camera at any pose.
 
 Independent of the splatting code on purpose: it is the yardstick reconstructions are
-measured against. Per pixel: the ray meets the flat ground (the BEV texture, mip-filtered by
-the pixel's ground footprint), the nearest box face, or the sky (a gradient by elevation).
-Boxes are z-buffered exact slab tests, pre-culled to their projected screen rectangles; where
+measured against. Per pixel: the ray meets the ground (the terrain surface, textured by the
+BEV texture mip-filtered by the pixel's ground footprint), the nearest solid, or the sky.
+Solids are z-buffered exact ray tests, pre-culled to their projected screen rectangles; where
 a painter's algorithm sorts whole boxes (and can misorder a long building against a car),
-this resolves every pixel to its nearest surface. A box crossing the near plane is tested on
+this resolves every pixel to its nearest surface. A solid crossing the near plane is tested on
 every pixel and a ray counts only hits beyond ``NEAR_Z``, so near-plane clipping is exact.
 Pixels under the camera's ego-mask polygons show the ego body, as on the real AV2 rig.
+Light (light.py): Lambert shading by the sun and, with the ``shadows`` factor, cast shadows on
+ground and solids and a sky with sun glow and clouds. The render is the clean world: unit
+exposure, neutral white balance, no vignetting, noise or JPEG (camera_effects.py adds those to
+the log's own images only).
 
 Depth is the camera z-depth in metres (float32): inf for sky, 0 under the ego mask. Labels
 (uint8, ``LABEL_*``) say what each pixel shows, so image quality can be scored per region.
@@ -22,7 +26,10 @@ import numpy as np
 
 from nuav2.geometry import F64, T_inverse
 from nuav2.rig import CameraSpec
-from nuav2.synth.boxes import KIND_BUILDING, KIND_PEDESTRIAN, KIND_VEHICLE, BoxSet, intersect_rays
+from nuav2.synth.boxes import FACE_QUADRIC, BoxSet, intersect_rays
+from nuav2.synth.light import AMBIENT, DIRECT, LEGACY_SUN, in_shadow, shadow_grid, sky_color
+from nuav2.synth.materials import material_color
+from nuav2.synth.terrain import ray_terrain, surface
 from nuav2.synth.texture import sample_texture_point
 from nuav2.synth.world import SyntheticWorld
 
@@ -31,18 +38,9 @@ NEAR_Z = 0.05
 LABEL_SKY, LABEL_GROUND, LABEL_OBJECT, LABEL_STATIC, LABEL_EGO = 0, 1, 2, 3, 4
 REGION_LABELS = {"sky": LABEL_SKY, "ground": LABEL_GROUND, "objects": LABEL_OBJECT, "static": LABEL_STATIC,
                  "ego": LABEL_EGO}
-SUN_DIR = np.array([0.35, -0.45, 0.82]) / np.linalg.norm([0.35, -0.45, 0.82])
-SKY_TOP_SIN = float(np.sin(np.pi / 3))  # the sky gradient saturates at 60 degrees elevation
-SKY_HORIZON = np.array([205.0, 218.0, 232.0])
-SKY_ZENITH = np.array([88.0, 136.0, 205.0])
+SUN_DIR = LEGACY_SUN  # the sun of worlds without the shadows factor
 EGO_BODY = np.array([52.0, 56.0, 64.0])
-GLASS = np.array([52.0, 62.0, 80.0])
-CAR_GLASS = np.array([30.0, 36.0, 44.0])
-TYRE = np.array([28.0, 28.0, 30.0])
-ROOF = np.array([118.0, 118.0, 115.0])
-TROUSERS = np.array([45.0, 50.0, 75.0])
-SKIN = np.array([205.0, 170.0, 140.0])
-FLOOR_M, WINDOW_PITCH_M = 3.2, 3.0
+SHADOW_EPS_M = 0.01
 # The 12 edges of a box as corner-index pairs (BoxSet.corners order: x-major sign bits).
 _EDGES = np.array([(i, j) for i in range(8) for j in range(i + 1, 8) if bin(i ^ j).count("1") == 1])
 
@@ -90,53 +88,20 @@ def _screen_rects(cam_T_local: F64, K: F64, width: int, height: int, boxes: BoxS
     return rects, z_low
 
 
-@numba.njit(cache=True, inline="always")
-def _box_color(kind, color, axis, u, half_u, v, height):
-    """Base colour of a box surface point: facade windows, car glass and tyres, pedestrian clothes.
-
-    ``u`` is the horizontal coordinate on a side face (|u| <= half_u), ``v`` the height above
-    the box bottom; axis 2 is the top face."""
-    r, g, b = color[0], color[1], color[2]
-    side = axis != 2
-    if kind == KIND_BUILDING:
-        if not side:
-            return ROOF[0], ROOF[1], ROOF[2]
-        vf = v % FLOOR_M
-        uw = (u + half_u) % WINDOW_PITCH_M
-        if 0.9 < uw < 2.1 and 1.0 < vf < 2.4 and abs(u) < half_u - 0.8 and v < height - 0.8:
-            return GLASS[0], GLASS[1], GLASS[2]
-        if vf < 0.2 and v > 0.5:
-            return 0.8 * r, 0.8 * g, 0.8 * b
-    elif kind == KIND_VEHICLE:
-        if not side:
-            return 0.85 * r, 0.85 * g, 0.85 * b
-        if v < 0.2 * height:
-            return TYRE[0], TYRE[1], TYRE[2]
-        if 0.6 * height < v < 0.92 * height and abs(u) < 0.8 * half_u:
-            return CAR_GLASS[0], CAR_GLASS[1], CAR_GLASS[2]
-    elif kind == KIND_PEDESTRIAN:
-        if v < 0.47 * height:
-            return TROUSERS[0], TROUSERS[1], TROUSERS[2]
-        if v > 0.87 * height:
-            return SKIN[0], SKIN[1], SKIN[2]
-    return r, g, b
-
-
-@numba.njit(cache=True)
-def _shade_kernel(origin, dirs, hit_t, hit_box, hit_face, centers, rots, halves, colors, kinds,
-                  tex_data, tex_box, tex_levels, tex_meta, focal, rgb, depth, labels):
-    """Per pixel: the nearest of box hit / ground hit / sky, its colour and its z-depth."""
-    for j in range(dirs.shape[0]):
+@numba.njit(cache=True, parallel=True)
+def _shade_kernel(origin, dirs, hit_t, hit_box, hit_face, centers, rots, halves, quads, colors, kinds, params,
+                  owners, tex_data, tex_box, tex_levels, tex_meta, focal, tmeta, tH, tSD, sky, gmeta, gstart,
+                  gitems, rgb, depth, labels):
+    """Per pixel: the nearest of solid hit / ground hit / sky, its colour and its z-depth."""
+    sun = sky[:3]
+    shadows = sky[3] > 0.5
+    flat = tmeta[12] > 0.5
+    for j in numba.prange(dirs.shape[0]):
         dx, dy, dz = dirs[j, 0], dirs[j, 1], dirs[j, 2]
-        t_ground = np.inf
-        if abs(dz) > 1e-12:
-            t = -origin[2] / dz
-            if t > NEAR_Z:
-                t_ground = t
         t_box = hit_t[j]
+        t_ground = ray_terrain(tmeta, tH, tSD, origin[0], origin[1], origin[2], dx, dy, dz, NEAR_Z, t_box)
         if t_box < t_ground:
             i, face = hit_box[j], hit_face[j]
-            axis = face // 2
             R = rots[i]
             px = origin[0] + t_box * dx - centers[i, 0]
             py = origin[1] + t_box * dy - centers[i, 1]
@@ -144,27 +109,65 @@ def _shade_kernel(origin, dirs, hit_t, hit_box, hit_face, centers, rots, halves,
             bx = R[0, 0] * px + R[1, 0] * py + R[2, 0] * pz
             by = R[0, 1] * px + R[1, 1] * py + R[2, 1] * pz
             bz = R[0, 2] * px + R[1, 2] * py + R[2, 2] * pz
+            if face == FACE_QUADRIC:
+                nbx, nby, nbz = quads[i, 0] * bx, quads[i, 1] * by, quads[i, 2] * bz
+                nn = np.sqrt(nbx * nbx + nby * nby + nbz * nbz)
+                nbx, nby, nbz = nbx / nn, nby / nn, nbz / nn
+                axis = 0 if abs(nbx) >= max(abs(nby), abs(nbz)) else (1 if abs(nby) >= abs(nbz) else 2)
+                n_dot_sun = (nbx * (R[0, 0] * sun[0] + R[1, 0] * sun[1] + R[2, 0] * sun[2])
+                             + nby * (R[0, 1] * sun[0] + R[1, 1] * sun[1] + R[2, 1] * sun[2])
+                             + nbz * (R[0, 2] * sun[0] + R[1, 2] * sun[1] + R[2, 2] * sun[2]))
+            else:
+                axis = face // 2
+                sign = 1.0 if face % 2 == 1 else -1.0
+                nbx = sign if axis == 0 else 0.0
+                nby = sign if axis == 1 else 0.0
+                nbz = sign if axis == 2 else 0.0
+                n_dot_sun = sign * (R[0, axis] * sun[0] + R[1, axis] * sun[1] + R[2, axis] * sun[2])
             u = by if axis == 0 else bx
             half_u = halves[i, 1] if axis == 0 else halves[i, 0]
-            r, g, b = _box_color(kinds[i], colors[i], axis, u, half_u, bz + halves[i, 2], 2 * halves[i, 2])
-            sign = 1.0 if face % 2 == 1 else -1.0
-            n_dot_sun = sign * (R[0, axis] * SUN_DIR[0] + R[1, axis] * SUN_DIR[1] + R[2, axis] * SUN_DIR[2])
-            shade = 0.45 + 0.55 * max(n_dot_sun, 0.0)
+            wx, wy, wz = origin[0] + t_box * dx, origin[1] + t_box * dy, origin[2] + t_box * dz
+            r, g, b, emissive = material_color(kinds[i], colors[i], params[i], axis, u, half_u,
+                                               bz + halves[i, 2], 2 * halves[i, 2], bx, by, bz, halves[i],
+                                               nbz, wx, wy, wz)
+            lit = 1.0
+            if shadows and n_dot_sun > 0.0:
+                nx = R[0, 0] * nbx + R[0, 1] * nby + R[0, 2] * nbz
+                ny = R[1, 0] * nbx + R[1, 1] * nby + R[1, 2] * nbz
+                nz = R[2, 0] * nbx + R[2, 1] * nby + R[2, 2] * nbz
+                if in_shadow(gmeta, gstart, gitems, centers, rots, halves, quads, sun, wx + SHADOW_EPS_M * nx,
+                             wy + SHADOW_EPS_M * ny, wz + SHADOW_EPS_M * nz):
+                    lit = 0.0
+            shade = 1.0 if emissive else AMBIENT + DIRECT * max(n_dot_sun, 0.0) * lit
             rgb[j, 0], rgb[j, 1], rgb[j, 2] = r * shade, g * shade, b * shade
             depth[j] = t_box
-            labels[j] = LABEL_STATIC if kinds[i] == KIND_BUILDING else LABEL_OBJECT
+            labels[j] = LABEL_OBJECT if owners[i] >= 0 else LABEL_STATIC
         elif t_ground < np.inf:
             norm = np.sqrt(dx * dx + dy * dy + dz * dz)
-            footprint = t_ground / focal / np.sqrt(max(abs(dz) / norm, 1e-6))
-            sample_texture_point(tex_data, tex_box, tex_levels, tex_meta, origin[0] + t_ground * dx,
-                                 origin[1] + t_ground * dy, footprint, rgb, j)
+            gx_, gy_ = origin[0] + t_ground * dx, origin[1] + t_ground * dy
+            if flat:
+                footprint = t_ground / focal / np.sqrt(max(abs(dz) / norm, 1e-6))
+                nx, ny, nz = 0.0, 0.0, 1.0
+            else:
+                _, sgx, sgy, _ = surface(tmeta, tH, tSD, gx_, gy_)
+                nn = np.sqrt(sgx * sgx + sgy * sgy + 1.0)
+                nx, ny, nz = -sgx / nn, -sgy / nn, 1.0 / nn
+                footprint = t_ground / focal / np.sqrt(max(abs(dx * nx + dy * ny + dz * nz) / norm, 1e-6))
+            sample_texture_point(tex_data, tex_box, tex_levels, tex_meta, gx_, gy_, footprint, rgb, j)
+            if shadows:
+                n_dot_sun = nx * sun[0] + ny * sun[1] + nz * sun[2]
+                lit = 1.0
+                if n_dot_sun > 0.0 and in_shadow(gmeta, gstart, gitems, centers, rots, halves, quads, sun,
+                                                 gx_ + SHADOW_EPS_M * nx, gy_ + SHADOW_EPS_M * ny,
+                                                 origin[2] + t_ground * dz + SHADOW_EPS_M * nz):
+                    lit = 0.0
+                k = (AMBIENT + DIRECT * max(n_dot_sun, 0.0) * lit) / (AMBIENT + DIRECT * sun[2])
+                for c in range(3):
+                    rgb[j, c] *= k
             depth[j] = t_ground
             labels[j] = LABEL_GROUND
         else:
-            elev = dz / np.sqrt(dx * dx + dy * dy + dz * dz)
-            s = min(max(elev / SKY_TOP_SIN, 0.0), 1.0) ** 0.7
-            for c in range(3):
-                rgb[j, c] = SKY_HORIZON[c] + (SKY_ZENITH[c] - SKY_HORIZON[c]) * s
+            sky_color(sky, dx, dy, dz, rgb, j)
             depth[j] = np.inf
             labels[j] = LABEL_SKY
 
@@ -191,10 +194,15 @@ def render_view(world: SyntheticWorld, cam: CameraSpec, city_T_cam: F64, timesta
     rgb = np.empty((w * h, 3), np.float32)
     depth = np.empty(w * h, np.float32)
     labels = np.empty(w * h, np.uint8)
+    sky = world.sky
+    grid = shadow_grid(boxes, sky.sun) if sky.structured else shadow_grid(BoxSet.empty(), sky.sun)
     _shade_kernel(origin, dirs, hits.t, hits.box, hits.face, np.ascontiguousarray(boxes.center),
                   np.ascontiguousarray(boxes.rotations), np.ascontiguousarray(boxes.size / 2),
-                  np.ascontiguousarray(boxes.color, np.float64), np.ascontiguousarray(boxes.kind, np.int64),
-                  *world.texture.packed.arrays(), float(np.sqrt(K[0, 0] * K[1, 1])), rgb, depth, labels)
+                  np.ascontiguousarray(boxes.quad, np.float64), np.ascontiguousarray(boxes.color, np.float64),
+                  np.ascontiguousarray(boxes.kind, np.int64), np.ascontiguousarray(boxes.params, np.float64),
+                  np.ascontiguousarray(boxes.owner, np.int64), *world.texture.packed.arrays(),
+                  float(np.sqrt(K[0, 0] * K[1, 1])), *world.terrain.arrays(), sky.packed(), *grid.arrays(),
+                  rgb, depth, labels)
     img = np.clip(rgb + 0.5, 0, 255).astype(np.uint8).reshape(h, w, 3)
     depth, labels = depth.reshape(h, w), labels.reshape(h, w)
     if cam.ego_mask_polygons:

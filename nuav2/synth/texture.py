@@ -16,6 +16,7 @@ from functools import cached_property
 import cv2
 import numba
 import numpy as np
+import shapely
 
 from nuav2.geometry import F64
 from nuav2.synth.road import DASH_LEN, DASH_PERIOD, DRIVABLE_HALF, SIDEWALK_W, RoadLayout
@@ -307,11 +308,13 @@ def _crosswalk_stripes(edge1: np.ndarray, edge2: np.ndarray) -> list[np.ndarray]
 
 
 def draw_layer(layout: RoadLayout, xmin: float, ymin: float, width_m: float, height_m: float, res: float,
-               salt: int) -> TextureLayer:
-    """Rasterise grass, sidewalks, asphalt, curbs, lane paint, stop bars and crosswalks."""
+               salt: int, road=None, walk=None) -> TextureLayer:
+    """Rasterise grass, sidewalks, asphalt, curbs, lane paint, stop bars and crosswalks (``road`` and
+    ``walk``: the drivable union and its sidewalk buffer, when the caller already has them)."""
     cv = _Canvas(xmin, ymin, width_m, height_m, res)
-    road = layout.drivable_union()
-    cv.fill(_polygons(road.buffer(SIDEWALK_W, quad_segs=16)), "concrete")
+    road = layout.drivable_union() if road is None else road
+    walk_area = road.buffer(SIDEWALK_W, quad_segs=16) if walk is None else walk
+    cv.fill(_polygons(walk_area), "concrete")
     walk = cv.mat == MAT["concrete"]
     jx = (cv.xmin + (np.arange(cv.w) + 0.5) * res) % SIDEWALK_JOINT[0] < SIDEWALK_JOINT[1]
     jy = (cv.ymin + (np.arange(cv.h) + 0.5) * res) % SIDEWALK_JOINT[0] < SIDEWALK_JOINT[1]
@@ -349,3 +352,25 @@ def build_ground_texture(layout: RoadLayout, reach_m: float, res: float, salt: i
     big = float(np.ceil(reach + 40.0))
     bg = draw_layer(layout, -big, -big, 2 * big, 2 * big, coarse_res, salt)
     return GroundTexture((ew, ns, bg))
+
+
+TILE_M = 32.0
+
+
+def build_tiled_texture(layout: RoadLayout, res: float, salt: int) -> GroundTexture:
+    """Fine square tiles wherever roads and sidewalks are (any layout), a coarse layer under all.
+
+    Noise is world-anchored and tiles share the grid, so neighbouring tiles join without a seam."""
+    road = layout.drivable_union()
+    walk = road.buffer(SIDEWALK_W, quad_segs=16)
+    near = walk.buffer(3.0)
+    x0, y0, x1, y1 = near.bounds
+    layers = []
+    for ty in np.arange(np.floor(y0 / TILE_M) * TILE_M, y1, TILE_M):
+        for tx in np.arange(np.floor(x0 / TILE_M) * TILE_M, x1, TILE_M):
+            if near.intersects(shapely.box(tx, ty, tx + TILE_M, ty + TILE_M)):
+                layers.append(draw_layer(layout, float(tx), float(ty), TILE_M, TILE_M, res, salt, road, walk))
+    coarse_res = min(0.5, 4 * res)
+    big = float(np.ceil(max(abs(x0), abs(x1), abs(y0), abs(y1)) + 40.0))
+    layers.append(draw_layer(layout, -big, -big, 2 * big, 2 * big, coarse_res, salt, road, walk))
+    return GroundTexture(tuple(layers))

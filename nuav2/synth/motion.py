@@ -1,0 +1,209 @@
+"""Motion along the lane graph: routes, speed profiles (stop and go, slowing for turns), lane changes.
+
+A :class:`PathMotion` is a path (a lane route's centre line), an arc length s(t) from a speed
+profile and a lateral offset l(t) (a lane change is a smoothstep of one lane width), tabulated at
+100 Hz and interpolated; the heading follows the velocity (no crabbing), and holds while stopped.
+Manoeuvres are centred on the middle of the log, so even a 2 s log sees its turn, stop or change.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+
+from nuav2.geometry import F64
+from nuav2.synth import polyline as pl
+from nuav2.synth.road import LANE_W, LaneSpec, RoadLayout
+
+TABLE_HZ = 100.0
+ACCEL = 2.0  # m/s^2, speeding up and braking
+STOP_FRONT_M = 5.0  # the ego origin (rear axle) stops this far before a stop bar's lane end
+
+
+def lane_centre(lane: LaneSpec) -> F64:
+    n = max(len(lane.left), len(lane.right), 2)
+    return 0.5 * (pl.resample(lane.left, n) + pl.resample(lane.right, n))
+
+
+def _heading_change(lane: LaneSpec) -> float:
+    c = lane_centre(lane)
+    t0, t1 = pl.tangents(c)[[0, -1]]
+    return float(np.arctan2(t0[0] * t1[1] - t0[1] * t1[0], t0 @ t1))
+
+
+def turn_kind(lane: LaneSpec) -> str:
+    """'left', 'right' or 'straight' for a junction lane."""
+    a = _heading_change(lane)
+    return "left" if a > np.deg2rad(35) else ("right" if a < -np.deg2rad(35) else "straight")
+
+
+@dataclass(frozen=True, eq=False)
+class Route:
+    lanes: tuple[int, ...]
+    path: F64  # (N, 2) centre line
+    marks: dict[int, tuple[float, float]]  # lane id -> (s start, s end) along the path
+
+
+def build_route(layout: RoadLayout, via: int) -> Route:
+    """The route through lane ``via``: back along predecessors to the map edge, on along successors."""
+    by_id = {ln.id: ln for ln in layout.lanes}
+    back, cur = [], by_id[via]
+    seen = {via}
+    while cur.predecessors:
+        preds = [p for p in cur.predecessors if p not in seen and not by_id[p].is_intersection] or [
+            p for p in cur.predecessors if p not in seen
+        ]
+        if not preds:
+            break
+        cur = by_id[preds[0]]
+        seen.add(cur.id)
+        back.append(cur.id)
+    fwd, cur = [], by_id[via]
+    while cur.successors:
+        nxt = [s for s in cur.successors if s not in seen and not by_id[s].is_intersection] or [
+            s for s in cur.successors if s not in seen and turn_kind(by_id[s]) == "straight"
+        ]
+        if not nxt:
+            break
+        cur = by_id[nxt[0]]
+        seen.add(cur.id)
+        fwd.append(cur.id)
+    ids = tuple(back[::-1] + [via] + fwd)
+    parts = [lane_centre(by_id[i]) for i in ids]
+    marks, s = {}, 0.0
+    for i, p in zip(ids, parts):
+        length = float(pl.arclength(p)[-1])
+        marks[i] = (s, s + length)
+        s += length
+    return Route(ids, pl.concat(parts), marks)
+
+
+def junction_lanes(layout: RoadLayout) -> list[LaneSpec]:
+    return [ln for ln in layout.lanes if ln.is_intersection]
+
+
+def speed_table(
+    kind: str, duration: float, v_cruise: float, *, hold_s: float = 0.0, v_slow: float = 0.0
+) -> tuple[F64, F64]:
+    """(t, S): time since the log start (100 Hz, -0.2 s to duration + 1 s) and arc length relative to the
+    event at mid-log. ``kind``: 'cruise', 'stop' (standstill for ``hold_s``) or 'slow' (``v_slow``
+    for ``hold_s``)."""
+    t = np.arange(-0.2, duration + 1.0 + 1e-9, 1.0 / TABLE_HZ)  # cameras fire up to 22.5 ms before sweep 0
+    tau = t - duration / 2
+    if kind == "cruise":
+        v = np.full_like(t, v_cruise)
+    else:
+        base = 0.0 if kind == "stop" else v_slow
+        v = np.minimum(v_cruise, base + ACCEL * np.maximum(np.abs(tau) - hold_s / 2, 0.0))
+    # S(tau) = integral of v from the event (tau = 0), exact for piecewise-linear v (trapezoids).
+    cum = np.concatenate([[0.0], np.cumsum(0.5 * (v[1:] + v[:-1]) * np.diff(t))])
+    return t, cum - np.interp(0.0, tau, cum)
+
+
+@dataclass(frozen=True, eq=False)
+class PathMotion:
+    """Position and heading along ``path`` from tabulated arc length and lateral offset."""
+
+    path: F64
+    t: F64  # (K,) seconds since the log start
+    s: F64  # (K,) arc length on the path
+    lat: F64  # (K,) offset to the left of the path (m)
+
+    @property
+    def speed(self) -> float:
+        """Mean speed over the table (0: parked / standing)."""
+        return float((self.s[-1] - self.s[0]) / max(self.t[-1] - self.t[0], 1e-9))
+
+    @cached_property
+    def _table(self) -> tuple[F64, F64]:
+        p = pl.at(self.path, self.s)
+        head = pl.heading_at(self.path, self.s)
+        p = p + self.lat[:, None] * np.column_stack([-np.sin(head), np.cos(head)])
+        v = np.gradient(p, self.t, axis=0)
+        moving = np.linalg.norm(v, axis=1) > 0.05
+        yaw = np.where(moving, np.arctan2(v[:, 1], v[:, 0]), head)
+        return p, np.unwrap(yaw)
+
+    def xy_yaw(self, t_s: F64) -> tuple[F64, F64]:
+        p, yaw = self._table
+        t_s = np.atleast_1d(np.asarray(t_s, np.float64))
+        xy = np.column_stack([np.interp(t_s, self.t, p[:, 0]), np.interp(t_s, self.t, p[:, 1])])
+        return xy, np.interp(t_s, self.t, yaw)
+
+
+def lane_change_offset(t: F64, duration: float, width: float, change_s: float = 4.0) -> F64:
+    u = np.clip((t - (duration / 2 - change_s / 2)) / change_s, 0.0, 1.0)
+    return width * u * u * (3 - 2 * u)
+
+
+def ego_motion(
+    layout: RoadLayout,
+    plan,
+    rng: np.random.Generator,
+    duration: float,
+    v_cruise: float,
+    varied: bool,
+    lane_change: bool,
+) -> tuple[PathMotion, str]:
+    """The ego's motion and the name of its manoeuvre.
+
+    ``varied`` (the layouts factor): turn left or right, stop and go at a stop bar, or change lanes,
+    as the layout allows; otherwise cruise straight on, drifting one lane right mid-log when
+    ``lane_change`` (the original ego's behaviour)."""
+    juncs = junction_lanes(layout)
+    straight_inner = [ln for ln in juncs if turn_kind(ln) == "straight" and ln.right_neighbor_id is not None]
+    options = ["lane_change"]
+    if juncs:
+        options += ["left", "right", "stop"]
+    elif plan.midblock_crossings:
+        options += ["stop"]
+    else:
+        options += ["slow"]
+    manoeuvre = options[int(rng.integers(len(options)))] if varied else "cruise"
+    if juncs and manoeuvre in ("left", "right"):
+        cands = [ln for ln in juncs if turn_kind(ln) == manoeuvre]
+        if not cands:
+            manoeuvre = "stop"
+    if juncs:
+        if manoeuvre in ("left", "right"):
+            via = cands[int(rng.integers(len(cands)))]
+        else:
+            pool = straight_inner or [ln for ln in juncs if turn_kind(ln) == "straight"]
+            via = pool[int(rng.integers(len(pool)))]
+        route = build_route(layout, via.id)
+        s_via0, s_via1 = route.marks[via.id]
+    else:
+        # One road: an inner (left-most) lane of one direction, from end to end.
+        firsts = [ln for ln in layout.lanes if not ln.predecessors and ln.right_neighbor_id is not None]
+        via = firsts[int(rng.integers(len(firsts)))]
+        route = build_route(layout, via.id)
+        mid = 0.5 * float(pl.arclength(route.path)[-1])
+        s_via0 = s_via1 = mid
+    lat = 0.0
+    if manoeuvre in ("left", "right"):
+        hold = (s_via1 - s_via0) / 5.0
+        t, S = speed_table("slow", duration, v_cruise, hold_s=hold, v_slow=5.0)
+        s = 0.5 * (s_via0 + s_via1) + S
+    elif manoeuvre == "stop":
+        if juncs:
+            s_stop = s_via0 - STOP_FRONT_M
+        else:  # the midblock crossing: the ego's lane passes it at the road's middle
+            road_i, s_cross = plan.midblock_crossings[0]
+            centre = plan.roads[road_i].centre
+            p_cross = pl.at(centre, np.array([s_cross]))[0]
+            s_on = pl.arclength(route.path)
+            s_stop = float(s_on[np.argmin(np.linalg.norm(route.path - p_cross, axis=1))]) - 3.4 - STOP_FRONT_M
+        t, S = speed_table("stop", duration, v_cruise, hold_s=float(rng.uniform(0.8, 1.6)))
+        s = s_stop + S
+    elif manoeuvre == "slow":
+        t, S = speed_table("slow", duration, v_cruise, hold_s=1.0, v_slow=0.5 * v_cruise)
+        s = s_via0 + S
+    else:
+        t, S = speed_table("cruise", duration, v_cruise)
+        s = (s_via0 - 30.0 - 0.5 * v_cruise * 4.0 if juncs else s_via0) + S
+        if manoeuvre == "lane_change" or (manoeuvre == "cruise" and lane_change):
+            lat = -LANE_W  # one lane to the right
+    lat_t = lane_change_offset(t, duration, lat) if lat else np.zeros_like(t)
+    return PathMotion(route.path, t, s, lat_t), manoeuvre

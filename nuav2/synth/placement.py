@@ -1,0 +1,471 @@
+"""Where things stand and go in a layout: buildings, parked and moving vehicles, pedestrians,
+cyclists and street furniture, placed along a :class:`~nuav2.synth.layouts.StreetPlan`.
+
+Moving actors follow lane routes at constant speed and are timed around the ego's position at
+mid-log (a lead car ahead on the ego's route, oncoming traffic, traffic leaving the junction),
+so a short log still sees them; pedestrians walk along sidewalks, cyclists ride near the kerb of
+lanes the ego does not use. Everything draws from the random stream it is given.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import shapely
+from shapely.geometry import Point, Polygon
+
+from nuav2.geometry import F64, make_T
+from nuav2.synth import polyline as pl
+from nuav2.synth.boxes import KIND_BUILDING, KIND_PEDESTRIAN, KIND_VEHICLE, BoxSet
+from nuav2.synth.config import SynthConfig
+from nuav2.synth.layouts import SIDEWALK_W, StreetPlan
+from nuav2.synth.legacy import CAR_COLORS, FACADE_COLORS, SHIRT_COLORS, ActorTrack, car, uuid4
+from nuav2.synth.materials import MAT_FACADE, REFLECTIVITY
+from nuav2.synth.motion import PathMotion, build_route, junction_lanes, lane_centre
+from nuav2.synth.road import RoadLayout
+from nuav2.synth.shapes import (
+    CYCLIST_SIZE,
+    PEDESTRIAN_SIZE,
+    VEHICLE_CLASSES,
+    SolidList,
+    rot_z,
+    sign,
+    street_light,
+    traffic_light,
+    tree,
+)
+from nuav2.synth.terrain import Terrain
+
+PARK_SPACING_M = 6.5
+MOVING_CLASSES = (("car", 0.45), ("suv", 0.25), ("bus", 0.15), ("truck", 0.15))
+PARKED_CLASSES = (("car", 0.65), ("suv", 0.35))
+SIGN_COLORS = np.array([[200, 30, 35], [235, 235, 235], [240, 200, 40], [30, 80, 170]], np.float32)
+LEAF_COLORS = np.array([[70, 110, 45], [55, 95, 50], [95, 120, 50], [60, 85, 40]], np.float32)
+FRAME_COLORS = np.array([[40, 40, 45], [180, 30, 30], [30, 90, 170], [210, 210, 210]], np.float32)
+
+
+def _pick(rng: np.random.Generator, table) -> str:
+    names, p = zip(*table)
+    return names[int(rng.choice(len(names), p=np.asarray(p) / np.sum(p)))]
+
+
+def _vehicle_size(rng: np.random.Generator, body: str) -> tuple[str, tuple[float, float, float]]:
+    category, *ranges = VEHICLE_CLASSES[body]
+    return category, tuple(float(rng.uniform(*r)) for r in ranges)
+
+
+def _moving(
+    uuid: str,
+    category: str,
+    kind: int,
+    size,
+    color,
+    motion: PathMotion,
+    body: str,
+    phase=0.0,
+    accent=(0.0, 0.0, 0.0),
+) -> ActorTrack:
+    xy, yaw = motion.xy_yaw(np.array([0.0]))
+    return ActorTrack(
+        uuid,
+        category,
+        kind,
+        tuple(float(v) for v in size),
+        tuple(float(c) for c in color),
+        (float(xy[0, 0]), float(xy[0, 1])),
+        float(yaw[0]),
+        motion.speed,
+        body,
+        motion,
+        float(phase),
+        tuple(float(c) for c in accent),
+    )
+
+
+def _constant(path: F64, s_mid: float, speed: float, duration: float, lat: float = 0.0) -> PathMotion:
+    t = np.arange(-0.2, duration + 1.0 + 1e-9, 0.05)
+    s = s_mid + speed * (t - duration / 2)
+    return PathMotion(path, t, s, np.full_like(t, lat))
+
+
+def dress_legacy_actors(actors: tuple[ActorTrack, ...], rng: np.random.Generator) -> tuple[ActorTrack, ...]:
+    """The original actors with shaped bodies: vehicles get a class (and its size), pedestrians walk."""
+    out = []
+    for a in actors:
+        if a.kind == KIND_VEHICLE:
+            body = _pick(rng, PARKED_CLASSES if a.speed == 0 else MOVING_CLASSES)
+            category, size = _vehicle_size(rng, body)
+            out.append(
+                ActorTrack(
+                    a.track_uuid, category, a.kind, size, a.color, a.start_xy, a.heading, a.speed, body
+                )
+            )
+        else:
+            size = tuple(float(rng.uniform(*r)) for r in PEDESTRIAN_SIZE)
+            out.append(
+                ActorTrack(
+                    a.track_uuid,
+                    a.category,
+                    a.kind,
+                    size,
+                    a.color,
+                    a.start_xy,
+                    a.heading,
+                    a.speed,
+                    "pedestrian",
+                    phase=float(rng.uniform(0, 2 * np.pi)),
+                )
+            )
+    return tuple(out)
+
+
+def _footprint(c: F64, yaw: float, lx: float, ly: float) -> Polygon:
+    R = rot_z(yaw)[:2, :2]
+    corners = np.array([[-lx, -ly], [lx, -ly], [lx, ly], [-lx, ly]]) / 2 @ R.T + c
+    return Polygon(corners)
+
+
+def place_buildings(plan: StreetPlan, layout: RoadLayout, rng: np.random.Generator) -> BoxSet:
+    """Facades along both sides of every road, off the roads and sidewalks, not overlapping."""
+    keep_out = layout.drivable_union().buffer(SIDEWALK_W + 0.8)
+    centers, yaws, sizes, colors = [], [], [], []
+    taken: list[Polygon] = []
+    for road in plan.roads:
+        L = road.length
+        for side, half in ((1.0, road.left_half), (-1.0, road.right_half)):
+            s = rng.uniform(3.0, 6.0)
+            while s < L - 4.0:
+                length, depth = rng.uniform(8.0, 20.0), rng.uniform(8.0, 14.0)
+                height = rng.uniform(5.0, 22.0)
+                near = half + SIDEWALK_W + 1.0 + rng.uniform(0.0, 2.0)
+                color = FACADE_COLORS[rng.integers(len(FACADE_COLORS))] * rng.uniform(0.85, 1.1)
+                gap = rng.uniform() < 0.12
+                s_mid = s + length / 2
+                s += length + rng.uniform(1.0, 5.0)
+                if gap or s_mid > L:
+                    continue
+                p = pl.at(road.centre, np.array([s_mid]))[0]
+                yaw = float(pl.heading_at(road.centre, np.array([s_mid]))[0])
+                n = np.array([-np.sin(yaw), np.cos(yaw)])
+                c = p + side * (near + depth / 2) * n
+                foot = _footprint(c, yaw, length, depth)
+                if foot.intersects(keep_out) or any(foot.intersects(t) for t in taken):
+                    continue
+                taken.append(foot.buffer(0.5))
+                centers.append([c[0], c[1], height / 2])
+                yaws.append(yaw)
+                sizes.append([length, depth, height])
+                colors.append(np.clip(color, 0, 255))
+    n = len(centers)
+    return BoxSet(
+        np.array(centers).reshape(n, 3),
+        np.array(yaws),
+        np.array(sizes).reshape(n, 3),
+        np.array(colors, np.float32).reshape(n, 3),
+        np.full(n, KIND_BUILDING, np.int8),
+        np.full(n, REFLECTIVITY[KIND_BUILDING], np.uint8),
+    )
+
+
+def style_facades(buildings: BoxSet, rng: np.random.Generator) -> BoxSet:
+    """Facades that vary: floor height, window pitch and width, storefronts, tint, roof shade."""
+    n = len(buildings)
+    params = np.column_stack(
+        [
+            rng.uniform(2.9, 4.2, n),
+            rng.uniform(1.8, 4.0, n),
+            rng.uniform(0.35, 0.8, n),
+            rng.uniform(0.8, 1.15, n),
+        ]
+    )
+    tint = rng.uniform(0.85, 1.12, (n, 3)).astype(np.float32)
+    color = np.clip(buildings.color * tint, 0, 255).astype(np.float32)
+    return BoxSet(
+        buildings.center,
+        buildings.yaw,
+        buildings.size,
+        color,
+        np.full(n, MAT_FACADE, np.int8),
+        buildings.reflectivity,
+        buildings.rot,
+        buildings.quad,
+        buildings.owner,
+        params,
+    )
+
+
+def settle(solids: BoxSet, terrain: Terrain, sink_m: float) -> BoxSet:
+    """Solids standing on z = 0 moved onto the terrain: lifted by the lowest ground under their
+    footprint and, with ``sink_m``, extended that far down so no gap shows on a slope."""
+    if terrain.flat or len(solids) == 0:
+        return solids
+    corners = solids.corners()[:, :, :2]
+    h = terrain.height(corners.reshape(-1, 2)).reshape(-1, 8).min(1)
+    center, size = solids.center.copy(), solids.size.copy()
+    if sink_m > 0:
+        center[:, 2] += h - sink_m / 2
+        size[:, 2] += sink_m
+    else:
+        center[:, 2] += h
+    return BoxSet(
+        center,
+        solids.yaw,
+        size,
+        solids.color,
+        solids.kind,
+        solids.reflectivity,
+        solids.rot,
+        solids.quad,
+        solids.owner,
+        solids.params,
+    )
+
+
+def _ego_mid(ego: PathMotion, duration: float) -> tuple[F64, F64]:
+    xy, yaw = ego.xy_yaw(np.array([duration / 2]))
+    return xy[0], np.array([np.cos(yaw[0]), np.sin(yaw[0])])
+
+
+def _near_lanes(layout: RoadLayout, p: F64, max_d: float):
+    out = []
+    for ln in layout.lanes:
+        if ln.is_intersection:
+            continue
+        c = lane_centre(ln)
+        d = np.linalg.norm(c - p, axis=1)
+        k = int(np.argmin(d))
+        if d[k] < max_d:
+            out.append((ln, pl.tangents(c)[k], float(d[k])))
+    return out
+
+
+def _route_at(layout: RoadLayout, lane_id: int, p: F64) -> tuple[F64, float]:
+    route = build_route(layout, lane_id)
+    s = pl.arclength(route.path)
+    return route.path, float(s[int(np.argmin(np.linalg.norm(route.path - p, axis=1)))])
+
+
+def place_actors(
+    rng: np.random.Generator,
+    cfg: SynthConfig,
+    plan: StreetPlan,
+    layout: RoadLayout,
+    ego: PathMotion,
+    duration: float,
+) -> tuple[ActorTrack, ...]:
+    """Parked vehicles, moving vehicles and pedestrians for a general layout."""
+    actors: list[ActorTrack] = []
+    p_mid, f_mid = _ego_mid(ego, duration)
+    ego_pts = ego.xy_yaw(np.linspace(0.0, duration, 9))[0]
+    # Parked: slots along parking strips, near the ego's path.
+    slots = []
+    for road in plan.roads:
+        if road.shoulder < 2.2:
+            continue
+        for side, half in ((-1.0, road.right_half), (1.0, road.left_half)):
+            for s in np.arange(6.0, road.length - 3.0, PARK_SPACING_M):
+                p = pl.at(road.centre, np.array([s]))[0]
+                yaw = float(pl.heading_at(road.centre, np.array([s]))[0])
+                n = np.array([-np.sin(yaw), np.cos(yaw)])
+                slots.append((p + side * (half - road.shoulder / 2) * n, yaw if side < 0 else yaw + np.pi))
+    if slots and cfg.n_parked:
+        dist = np.array([np.min(np.linalg.norm(ego_pts - xy, axis=1)) for xy, _ in slots])
+        w = np.exp(-dist / 25.0)
+        pick = rng.choice(len(slots), size=min(cfg.n_parked, len(slots)), replace=False, p=w / w.sum())
+        for i in sorted(pick):
+            xy, yaw = slots[i]
+            a = car(rng, (float(xy[0]), float(xy[1])), float(yaw + rng.uniform(-0.04, 0.04)), 0.0)
+            if cfg.content:
+                body = _pick(rng, PARKED_CLASSES)
+                category, size = _vehicle_size(rng, body)
+                a = ActorTrack(
+                    a.track_uuid, category, a.kind, size, a.color, a.start_xy, a.heading, 0.0, body
+                )
+            actors.append(a)
+    # Moving: lead on the ego's route, oncoming, leaving the junction (turning or not).
+    juncs = junction_lanes(layout)
+    near = _near_lanes(layout, p_mid, 12.0)
+    oncoming = [x for x in near if x[1] @ f_mid < -0.5]
+    ego_s_mid = float(np.interp(duration / 2, ego.t, ego.s))
+    for j in range(cfg.n_moving):
+        role, rank = ("lead", "oncoming", "leaving")[j % 3], j // 3
+        color = CAR_COLORS[rng.integers(len(CAR_COLORS))]
+        body = _pick(rng, MOVING_CLASSES) if cfg.content else "box"
+        category, size = (
+            _vehicle_size(rng, body)
+            if cfg.content
+            else ("REGULAR_VEHICLE", (rng.uniform(4.2, 5.0), rng.uniform(1.8, 2.0), rng.uniform(1.45, 1.8)))
+        )
+        if role == "lead":
+            lat = float(ego.lat[-1])
+            v = float(np.max(np.gradient(ego.s, ego.t))) * rng.uniform(1.0, 1.08)
+            motion = _constant(
+                ego.path, ego_s_mid + 24.0 + 15.0 * rank + rng.uniform(0, 8) + size[0] / 2, v, duration, lat
+            )
+        elif role == "oncoming" and oncoming:
+            ln = oncoming[(rank + int(rng.integers(len(oncoming)))) % len(oncoming)][0]
+            path, s_near = _route_at(layout, ln.id, p_mid)
+            motion = _constant(path, s_near + rng.uniform(-40.0, 10.0), rng.uniform(7.0, 11.0), duration)
+        elif juncs:
+            via = juncs[int(rng.integers(len(juncs)))]
+            route = build_route(layout, via.id)
+            s0, s1 = route.marks[via.id]
+            motion = _constant(route.path, s1 + rng.uniform(8.0, 30.0), rng.uniform(5.0, 9.0), duration)
+        else:  # one road: a same-direction neighbour lane, well ahead of or behind the ego
+            beside = [x for x in near if x[1] @ f_mid > 0.5 and x[2] > 2.5] or oncoming or near
+            ln = beside[(rank + int(rng.integers(len(beside)))) % len(beside)][0]
+            path, s_near = _route_at(layout, ln.id, p_mid)
+            v = float(np.max(np.gradient(ego.s, ego.t))) * rng.uniform(1.0, 1.15)  # stays ahead of the ego
+            motion = _constant(path, s_near + rng.uniform(20.0, 45.0), v, duration)
+        actors.append(_moving(uuid4(rng), category, KIND_VEHICLE, size, color, motion, body))
+    # Pedestrians: along the sidewalks nearest the ego.
+    lines = []
+    for road in plan.roads:
+        for side, half in ((1.0, road.left_half), (-1.0, road.right_half)):
+            line = pl.offset(road.centre, side * (half + SIDEWALK_W / 2))
+            lines.append((float(np.min(np.linalg.norm(line - p_mid, axis=1))), line))
+    lines.sort(key=lambda x: x[0])
+    for j in range(cfg.n_pedestrians):
+        line = lines[j % min(len(lines), 2)][1]
+        if rng.uniform() < 0.5:
+            line = line[::-1]
+        s_near = float(pl.arclength(line)[int(np.argmin(np.linalg.norm(line - p_mid, axis=1)))])
+        motion = _constant(
+            line, s_near + rng.uniform(-15.0, 25.0), rng.uniform(1.1, 1.5), duration, rng.uniform(-0.6, 0.6)
+        )
+        shirt = SHIRT_COLORS[rng.integers(len(SHIRT_COLORS))]
+        if cfg.content:
+            size = tuple(rng.uniform(*r) for r in PEDESTRIAN_SIZE)
+            actors.append(
+                _moving(
+                    uuid4(rng),
+                    "PEDESTRIAN",
+                    KIND_PEDESTRIAN,
+                    size,
+                    shirt,
+                    motion,
+                    "pedestrian",
+                    rng.uniform(0, 2 * np.pi),
+                )
+            )
+        else:
+            size = (rng.uniform(0.5, 0.7), rng.uniform(0.5, 0.7), rng.uniform(1.6, 1.9))
+            actors.append(_moving(uuid4(rng), "PEDESTRIAN", KIND_PEDESTRIAN, size, shirt, motion, "box"))
+    return tuple(actors)
+
+
+def place_cyclists(
+    rng: np.random.Generator,
+    cfg: SynthConfig,
+    layout: RoadLayout,
+    ego_mid: F64,
+    duration: float,
+    first_index: int,
+) -> tuple[ActorTrack, ...]:
+    """Cyclists near the kerb of outer lanes around the ego (opposite direction preferred)."""
+    outer = [x for x in _near_lanes(layout, ego_mid, 25.0) if x[0].right_neighbor_id is None]
+    if not outer:
+        return ()
+    out = []
+    for _ in range(cfg.n_cyclists):
+        ln = outer[int(rng.integers(len(outer)))][0]
+        path, s_near = _route_at(layout, ln.id, ego_mid)
+        motion = _constant(path, s_near + rng.uniform(-30.0, 30.0), rng.uniform(4.0, 6.5), duration, -1.0)
+        shirt = SHIRT_COLORS[rng.integers(len(SHIRT_COLORS))]
+        frame = FRAME_COLORS[rng.integers(len(FRAME_COLORS))]
+        out.append(
+            _moving(
+                uuid4(rng), "BICYCLIST", KIND_PEDESTRIAN, CYCLIST_SIZE, shirt, motion, "cyclist", accent=frame
+            )
+        )
+    return tuple(out)
+
+
+def place_furniture(
+    rng: np.random.Generator, plan: StreetPlan, layout: RoadLayout, terrain: Terrain
+) -> BoxSet:
+    """Street lights, signs and trees along the sidewalks, median trees, and traffic lights at junctions."""
+    road_area = layout.drivable_union().buffer(0.3)
+    crossings = (
+        shapely.union_all([Polygon(cw.polygon) for cw in layout.crosswalks]).buffer(1.5)
+        if layout.crosswalks
+        else Polygon()
+    )
+    parts: list[BoxSet] = []
+    taken: list[F64] = []
+
+    def put(solids: SolidList, xy: F64, yaw: float, clearance: float) -> None:
+        if road_area.contains(Point(xy)) or crossings.contains(Point(xy)):
+            return
+        if any(np.linalg.norm(xy - t) < clearance for t in taken):
+            return
+        taken.append(xy)
+        z = float(terrain.height(xy[None])[0])
+        parts.append(solids.boxset(make_T(rot_z(yaw), [xy[0], xy[1], z]), -1))
+
+    for road in plan.roads:
+        L = road.length
+        for side, half in ((1.0, road.left_half), (-1.0, road.right_half)):
+
+            def frame(s: float, lateral: float, road=road, side=side) -> tuple[F64, float, F64]:
+                p = pl.at(road.centre, np.array([s]))[0]
+                yaw = float(pl.heading_at(road.centre, np.array([s]))[0])
+                n = np.array([-np.sin(yaw), np.cos(yaw)])
+                return p + side * lateral * n, yaw, n
+
+            for s in np.arange(rng.uniform(4.0, 20.0), L - 2.0, rng.uniform(28.0, 36.0)):
+                xy, yaw, n = frame(s, half + 0.7)
+                toward_road = -side * n
+                put(
+                    street_light(rng.uniform(7.0, 9.0)),
+                    xy,
+                    float(np.arctan2(toward_road[1], toward_road[0])),
+                    2.0,
+                )
+            for s in np.arange(rng.uniform(8.0, 40.0), L - 2.0, rng.uniform(35.0, 60.0)):
+                xy, yaw, _ = frame(s, half + 0.5)
+                facing = yaw + np.pi if side < 0 else yaw  # toward the traffic approaching on this side
+                color = SIGN_COLORS[rng.integers(len(SIGN_COLORS))]
+                put(sign(rng.uniform(2.1, 2.5), color, bool(rng.uniform() < 0.4)), xy, float(facing), 1.5)
+            for s in np.arange(rng.uniform(3.0, 10.0), L - 2.0, rng.uniform(8.0, 13.0)):
+                if rng.uniform() < 0.3:
+                    continue
+                xy, _, _ = frame(s, half + SIDEWALK_W - 0.9)
+                r = rng.uniform(1.3, 2.1)
+                put(
+                    tree(
+                        rng.uniform(2.0, 3.0),
+                        rng.uniform(0.12, 0.2),
+                        (r, r * rng.uniform(0.85, 1.0), r * rng.uniform(1.0, 1.4)),
+                        LEAF_COLORS[rng.integers(len(LEAF_COLORS))],
+                    ),
+                    xy,
+                    float(rng.uniform(0, np.pi)),
+                    3.0,
+                )
+        if road.median >= 2.0:
+            for s in np.arange(rng.uniform(3.0, 9.0), L - 2.0, rng.uniform(10.0, 14.0)):
+                p = pl.at(road.centre, np.array([s]))[0]
+                r = min(rng.uniform(1.3, 1.9), road.median / 2 + 0.3)
+                put(
+                    tree(
+                        rng.uniform(2.2, 3.0),
+                        0.15,
+                        (r, r, r * 1.3),
+                        LEAF_COLORS[rng.integers(len(LEAF_COLORS))],
+                    ),
+                    p,
+                    0.0,
+                    3.0,
+                )
+    for junc in plan.junctions:
+        c = np.asarray(junc.centre, np.float64)
+        for road_i, at_start in junc.arms:
+            road = plan.roads[road_i]
+            u = pl.tangents(road.centre)[0] if at_start else -pl.tangents(road.centre)[-1]
+            n = np.array([-u[1], u[0]])
+            hi = road.left_half if at_start else road.right_half
+            n_in = road.n_bwd if at_start else road.n_fwd
+            xy = c + (junc.edge + 1.2) * u + (hi + 0.7) * n
+            reach = hi + 0.7 - (road.median / 2 + 0.5 * n_in * 3.5)
+            put(traffic_light(float(reach), int(rng.integers(3))), xy, float(np.arctan2(u[1], u[0])), 0.5)
+    return BoxSet.concat(*parts) if parts else BoxSet.empty()

@@ -1,0 +1,59 @@
+"""Helpers of the end-to-end tests: run the CLI in-process, convert under umask 022, read tables."""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import os
+from collections.abc import Iterator
+from pathlib import Path
+
+from test_writer_support import add_blank_images, link_log
+
+VERSION = "v1.0-nuav2"
+FIXTURE_ID = "adcf7d18-0510-35b0-a2fa-b4cea13a6d76"  # in av2's TRAIN list (index 469): scene-2469
+OTHER_ID = "00000002-0510-35b0-a2fa-b4cea13a6d76"  # in no av2 list: a 3000-9999 name
+SYNTH_SECONDS = "0.5"
+
+
+@contextlib.contextmanager
+def umask(mask: int) -> Iterator[None]:
+    old = os.umask(mask)
+    try:
+        yield
+    finally:
+        os.umask(old)
+
+
+def cli(*argv: object) -> tuple[int, str, str]:
+    """Run ``nuav2 ARGV`` in this process: (exit code, stdout, stderr)."""
+    from nuav2.cli import main
+
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = main([str(a) for a in argv])
+    return code, out.getvalue(), err.getvalue()
+
+
+def convert(src: Path, out: Path, *flags: str) -> dict:
+    """``nuav2 convert av2 SRC OUT`` under umask 022; returns the printed summary."""
+    with umask(0o022):
+        code, stdout, stderr = cli("convert", "av2", src, out, "--no-progress", *flags)
+    assert code == 0, stderr
+    return json.loads(stdout.strip().splitlines()[-1])
+
+
+def imaged_copy(fixture_log: Path, calibration: Path, split_dir: Path, log_id: str) -> Path:
+    """The real fixture log under ``split_dir/log_id`` with calibration and blank camera images."""
+    log_dir = link_log(fixture_log, split_dir, log_id, calibration)
+    add_blank_images(log_dir, calibration)
+    return log_dir
+
+
+def table(db: Path, name: str) -> list[dict]:
+    return json.loads((db / VERSION / f"{name}.json").read_text())
+
+
+def logs_meta(db: Path) -> list[dict]:
+    return json.loads((db / VERSION / "nuav2_logs.json").read_text())
