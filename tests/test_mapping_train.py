@@ -8,8 +8,8 @@ import json
 
 import pytest
 import torch
+from transfer_dbs import synthetic_truth_db
 
-from nuav2.cli import main
 from nuav2.mapping import (
     MapModelConfig,
     TrainConfig,
@@ -22,7 +22,6 @@ from nuav2.mapping import (
     write_results,
 )
 from nuav2.maptr.vectorize import gt_vectors_for_split
-from nuav2.synth import SynthConfig, generate_log
 
 SMALL = MapModelConfig(
     input_focal_px=60.0,
@@ -42,26 +41,7 @@ VERSION, SPLIT = "v1.0-nuav2", "av2_train"
 
 @pytest.fixture(scope="module")
 def truth_db(tmp_path_factory):
-    root = tmp_path_factory.mktemp("mapdb")
-    log_dir = generate_log(root / "src", seed=5, config=SynthConfig(seconds=0.4))
-    out = root / "db"
-    assert (
-        main(
-            [
-                "convert",
-                "av2",
-                str(log_dir.parent),
-                str(out),
-                "--mode",
-                "truth",
-                "--scale",
-                "0.08",
-                "--no-progress",
-            ]
-        )
-        == 0
-    )
-    return out
+    return synthetic_truth_db(tmp_path_factory.mktemp("mapdb"), seed=5, seconds=0.4, scale=0.08)[1]
 
 
 def test_tensors_come_from_the_maptr_dataset_at_the_model_focal_length(truth_db, tmp_path):

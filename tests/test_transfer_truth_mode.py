@@ -14,12 +14,13 @@ import json
 import cv2
 import numpy as np
 import pytest
+from transfer_dbs import synthetic_truth_db
 
 from nuav2.cli import main
 from nuav2.geometry import T_from_quat_trans, translation_T
 from nuav2.maptr.dataset import load_image_rgb
 from nuav2.rig import load_rig
-from nuav2.synth import SynthConfig, generate_log, load_world, render_view
+from nuav2.synth import load_world, render_view
 from nuav2.synth.world import EGO_ORIGIN_HEIGHT_M
 
 SCALE = 0.1
@@ -27,26 +28,7 @@ SCALE = 0.1
 
 @pytest.fixture(scope="module")
 def truth_db(tmp_path_factory):
-    root = tmp_path_factory.mktemp("truth")
-    log_dir = generate_log(root / "src", seed=3, config=SynthConfig(seconds=0.3))
-    out = root / "db"
-    rc = main(
-        [
-            "convert",
-            "av2",
-            str(log_dir.parent),
-            str(out),
-            "--mode",
-            "truth",
-            "--rig",
-            "nuscenes",
-            "--scale",
-            str(SCALE),
-            "--no-progress",
-        ]
-    )
-    assert rc == 0
-    return log_dir, out
+    return synthetic_truth_db(tmp_path_factory.mktemp("truth"), seed=3, seconds=0.3, scale=SCALE)
 
 
 def _jpeg_roundtrip(rgb: np.ndarray) -> np.ndarray:

@@ -18,7 +18,6 @@ from __future__ import annotations
 import json
 import logging
 import os
-import sys
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -194,7 +193,7 @@ def run_transfer(
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    progress = sys.stderr.isatty() if progress is None else progress
+    progress = True if progress is None else progress
     t0, c0, load0 = time.perf_counter(), time.process_time(), list(os.getloadavg())
     torch.set_num_threads(cfg.threads)
     data_info = prepare_data(cfg, out, progress)

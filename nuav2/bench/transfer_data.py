@@ -149,27 +149,6 @@ def split_database(db_dir: Path, version: str, lists_path: Path) -> dict:
     return json.loads(buf.getvalue())
 
 
-def _split_from_lists(db_dir: Path, version: str, lists: dict[str, list[str]], error: str) -> dict:
-    """Temporary stand-in while ``nuav2 split`` cannot read converted databases (issue 10, finding 1):
-    the same geo_train / geo_test from the world lists, written with the splitter's own writer."""
-    from nuscenes.nuscenes import NuScenes
-
-    from nuav2.splits import write_splits
-
-    nusc = NuScenes(version=version, dataroot=str(db_dir), verbose=False)
-    scene_of = {nusc.get("log", s["log_token"])["logfile"]: s["name"] for s in nusc.scene}
-    splits = {
-        k: sorted(scene_of[x] for x in lists.get(k, []) if x in scene_of) for k in ("train", "val", "test")
-    }
-    report = {
-        "method": "lists (fallback: nuav2 split failed)",
-        "splitter_error": error,
-        "scenes": {k: len(v) for k, v in splits.items()},
-    }
-    write_splits(db_dir, version, splits, report)
-    return report
-
-
 def prepare_data(cfg: TransferConfig, out: Path, progress: bool = True) -> dict:
     """Worlds, conversions and splits under ``out``; returns what was done (and reused) with timings."""
     worlds_dir = out / "worlds"
@@ -185,12 +164,7 @@ def prepare_data(cfg: TransferConfig, out: Path, progress: bool = True) -> dict:
         db = out / "db" / name
         log.info("converting the %s set into %s", name, db)
         conversions[name] = convert_set(cfg, name, worlds_dir, db, progress)
-        try:
-            report = split_database(db, cfg.version, lists_path)
-            splits[name] = report.get("new", report)
-        except Exception as e:  # noqa: BLE001 - see _split_from_lists
-            log.warning("nuav2 split failed on %s (%s); writing the splits from the world lists", db, e)
-            splits[name] = _split_from_lists(db, cfg.version, lists, f"{type(e).__name__}: {e}")
+        splits[name] = split_database(db, cfg.version, lists_path)["new"]
     return {"worlds": worlds, "lists": str(lists_path), "conversions": conversions, "splits": splits}
 
 

@@ -15,7 +15,6 @@ import json
 import logging
 import math
 import os
-import sys
 import time
 from collections.abc import Callable
 from dataclasses import asdict
@@ -117,7 +116,7 @@ def train(
     *,
     init_weights: str | Path | None = None,
     evaluator: Evaluator | None = None,
-    progress: bool | None = None,
+    progress: bool | None = None,  # False: no progress display; else a bar on a terminal, log lines elsewhere
 ) -> dict:
     """Train (or resume, or reuse) the run in ``run_dir``; returns its ``run.json`` record.
 
@@ -153,13 +152,15 @@ def train(
     eval_steps = set(
         range(train_cfg.eval_every, train_cfg.steps, train_cfg.eval_every) if train_cfg.eval_every else []
     ) | {train_cfg.steps}
-    show = sys.stderr.isatty() if progress is None else progress
-    from tqdm import tqdm
+    from nuav2.progress import progress_bar
 
-    bar = tqdm(
-        total=train_cfg.steps, initial=step, desc=f"train {run_dir.name}", unit="step", disable=not show
+    bar = progress_bar(
+        total=train_cfg.steps,
+        initial=step,
+        desc=f"train {run_dir.name}",
+        unit="step",
+        disable=progress is False,
     )
-    last_line = time.time()
     model.train()
     try:
         while step < train_cfg.steps:
@@ -189,16 +190,14 @@ def train(
             elapsed["wall_s"] += time.perf_counter() - t0
             elapsed["cpu_s"] += time.process_time() - c0
             bar.update()
-            if not show and time.time() - last_line > 30:
-                log.info(
-                    "%s: step %d/%d loss %.3f", run_dir.name, step, train_cfg.steps, total.detach().item()
-                )
-                last_line = time.time()
+            shown = {"loss": f"{total.detach().item():.3f}"}
+            if curve:
+                shown["mAP"] = f"{curve[-1]['mAP']:.3f}"
+            bar.set_postfix(**shown)
             if step in eval_steps and evaluator is not None:
                 t1 = time.perf_counter()
                 curve.append({"step": step, **evaluator(model)})
                 elapsed["eval_wall_s"] += time.perf_counter() - t1
-                bar.set_postfix(mAP=f"{curve[-1]['mAP']:.3f}")
             if (
                 train_cfg.checkpoint_every and step % train_cfg.checkpoint_every == 0
             ) or step == train_cfg.steps:
