@@ -70,6 +70,10 @@ class TransferConfig:
     model: MapModelConfig = field(default_factory=MapModelConfig)
 
     def __post_init__(self) -> None:
+        from nuav2.synth import PRESETS
+
+        if self.preset not in PRESETS:
+            raise ValueError(f"--preset {self.preset!r}: must be one of {PRESETS}")
         if self.size not in SIZES:
             raise ValueError(f"size must be one of {SIZES}, got {self.size!r}")
         unknown = [s for s in self.sets if s not in TABLE1_SETS]

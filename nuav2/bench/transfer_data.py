@@ -34,36 +34,28 @@ TRAIN_SPLIT, TEST_SPLIT = "geo_train", "geo_test"
 class WorldSpec:
     seed: int
     split: str  # AV2 split directory: "train" or "val" (the test worlds)
-    layout: str | None
+    layout: str
     city: str
 
 
-def available_layouts() -> tuple[str | None, ...]:
-    """The synthetic world's road layouts (``nuav2.synth.LAYOUTS``); (None,) where it has only one."""
-    import nuav2.synth as synth
-
-    return tuple(getattr(synth, "LAYOUTS", ())) or (None,)
-
-
 def synth_config(cfg: TransferConfig, world: WorldSpec):
-    """The SynthConfig of one world: the preset, the benchmark's log length and camera scale."""
-    import nuav2.synth as synth
+    """The SynthConfig of one world: the preset and layout, the benchmark's log length and cameras."""
     from nuav2.synth import SynthConfig
 
-    overrides: dict = {"seconds": cfg.seconds, "image_scale": cfg.synth_image_scale, "city": world.city}
-    if hasattr(SynthConfig, "for_preset"):
-        if world.layout is not None:
-            overrides["layout"] = world.layout
-        return SynthConfig.for_preset(cfg.preset, **overrides)
-    if cfg.preset != "easy":
-        presets = getattr(synth, "PRESETS", ("easy",))
-        raise ValueError(f"--preset {cfg.preset!r}: this nuav2's synthetic world has only {list(presets)}")
-    return SynthConfig(**overrides)
+    return SynthConfig.for_preset(
+        cfg.preset,
+        layout=world.layout,
+        seconds=cfg.seconds,
+        image_scale=cfg.synth_image_scale,
+        city=world.city,
+    )
 
 
 def world_specs(cfg: TransferConfig) -> list[WorldSpec]:
     """Train worlds then test worlds: distinct seeds, layouts cycling (test ones offset), two cities."""
-    layouts = tuple(cfg.layouts) if cfg.layouts else available_layouts()
+    from nuav2.synth import LAYOUTS
+
+    layouts = tuple(cfg.layouts) if cfg.layouts else LAYOUTS
     train = [
         WorldSpec(cfg.train_seed0 + i, "train", layouts[i % len(layouts)], cfg.train_city)
         for i in range(cfg.train_worlds)

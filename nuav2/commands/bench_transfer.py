@@ -8,7 +8,7 @@ import shlex
 import sys
 from pathlib import Path
 
-from nuav2.cli import group
+from nuav2.cli import UsageError, group
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -62,9 +62,8 @@ def run(args: argparse.Namespace) -> int:
     }
     try:
         cfg = TransferConfig.for_size(size, **overrides)
-    except (TypeError, ValueError) as e:
-        print(f"nuav2 bench transfer: {e}", file=sys.stderr)
-        return 2
+    except ValueError as e:
+        raise UsageError(str(e)) from e
     command = "nuav2 " + " ".join(shlex.quote(a) for a in sys.argv[2:]) if sys.argv[1:2] == ["bench"] else ""
     result = run_transfer(
         cfg,
