@@ -5,6 +5,7 @@ decoding gives MapTR's top-k (query x class) vectors in metres."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import torch
 
 from nuav2.mapping.config import LossConfig, MapModelConfig
@@ -122,3 +123,18 @@ def test_decode_takes_top_k_query_class_pairs_in_metres():
     ]
     np.testing.assert_allclose(out[0][1], denormalise_points(pts[1], CFG).double().numpy(), atol=1e-6)
     np.testing.assert_allclose(out[1][1], out[2][1])  # one query can yield several classes
+
+
+def test_depth_loss_is_cross_entropy_at_pixels_with_lidar():
+    from nuav2.mapping.losses import depth_loss
+
+    D = 5
+    target = torch.tensor([[[[2, -1], [-1, 0]]]])  # (B=1, N=1, h=2, w=2)
+    uniform = torch.full((1, 1, D, 2, 2), 1.0 / D)
+    assert float(depth_loss(uniform, target)) == pytest.approx(np.log(D), rel=1e-6)
+    sharp = torch.zeros(1, 1, D, 2, 2)
+    sharp[0, 0, 2, 0, 0] = 1.0
+    sharp[0, 0, 0, 1, 1] = 1.0
+    sharp[0, 0, 4, 0, 1] = 1.0  # a pixel without LiDAR: whatever it says costs nothing
+    assert float(depth_loss(sharp, target)) == pytest.approx(0.0, abs=1e-6)
+    assert float(depth_loss(uniform, torch.full_like(target, -1))) == 0.0

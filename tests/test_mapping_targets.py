@@ -67,3 +67,32 @@ def test_pv_target_follows_the_projected_ground_line():
     for a, b in zip(fv[inside], fu[inside]):
         near[max(0, a - 1) : a + 2, max(0, b - 1) : b + 2] = True
     assert front[~near].sum() == 0
+
+
+def test_depth_target_is_the_nearest_lidar_return_per_feature_pixel():
+    from nuav2.mapping.targets import depth_targets
+
+    K = np.array([[50.0, 0, 31.5], [0, 50.0, 15.5], [0, 0, 1]])
+    cam_T_lidar = np.eye(4)
+    cam_T_lidar[:3, :3] = [[1, 0, 0], [0, 0, -1], [0, 1, 0]]  # camera looks along lidar y (forward)
+    K4 = np.eye(4)
+    K4[:3, :3] = K
+    l2i = (K4 @ cam_T_lidar)[None]
+    step = (CFG.depth_max_m - CFG.depth_min_m) / CFG.depth_bins
+
+    def lidar_point(u: float, v: float, depth: float) -> list[float]:
+        x, y = (u - K[0, 2]) / K[0, 0] * depth, (v - K[1, 2]) / K[1, 1] * depth
+        return [x, depth, -y]  # camera (x, y, z) -> lidar (x, z, -y)
+
+    pts = np.array([
+        lidar_point(11.0, 4.0, 10.2),  # feature pixel (0, 1)
+        lidar_point(13.0, 6.0, 20.0),  # same feature pixel, farther: ignored
+        lidar_point(40.0, 20.0, 5.1),  # feature pixel (2, 5)
+        lidar_point(40.0, 20.0, 60.0),  # beyond the depth range
+        lidar_point(70.0, 20.0, 8.0),  # right of the 64 px image
+    ])
+    out = depth_targets(pts, l2i, np.array([[32, 64]]), (4, 8), CFG)
+    assert out.shape == (1, 4, 8)
+    assert out[0, 0, 1] == int((10.2 - CFG.depth_min_m) // step)
+    assert out[0, 2, 5] == int((5.1 - CFG.depth_min_m) // step)
+    assert (out >= 0).sum() == 2

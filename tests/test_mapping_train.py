@@ -32,6 +32,7 @@ SMALL = MapModelConfig(
     bev_cell_m=1.0,
     bev_channels=24,
     num_queries=16,
+    one2many_queries=16,
     decoder_layers=2,
     decoder_dim=32,
     decoder_heads=2,
@@ -124,3 +125,20 @@ def test_predictions_are_scored_by_nuav2_eval_as_in_process(truth_db, tmp_path):
     assert cli["mAP"] == pytest.approx(here["mAP"], abs=1e-6)
     for c in SMALL.classes:
         assert cli["ap"][c] == pytest.approx(here["ap"][c], abs=1e-6)
+
+
+def test_one_to_many_queries_train_only_and_never_see_the_others():
+    from nuav2.mapping import MapModel
+
+    cfg = MapModelConfig(**{**SMALL.__dict__, "one2many_queries": 8})  # not SMALL's 16: any count works
+    model = MapModel(cfg).eval()
+    img = torch.randint(0, 255, (1, 2, 3, 32, 48), dtype=torch.uint8)
+    l2i = torch.eye(4).expand(1, 2, 4, 4).clone()
+    hw = torch.tensor([[[32, 48], [32, 48]]])
+    plain = model(img, l2i, hw)["layers"]
+    both = model(img, l2i, hw, one2many=True)["layers"]
+    assert plain[-1][0].shape[1] == cfg.num_queries and both[-1][0].shape[1] == cfg.num_queries + 8
+    # the one-to-one queries give the same output whether the training-only group runs or not
+    for (c1, p1), (c2, p2) in zip(plain, both):
+        torch.testing.assert_close(c1, c2[:, : cfg.num_queries], rtol=1e-5, atol=1e-5)
+        torch.testing.assert_close(p1, p2[:, : cfg.num_queries], rtol=1e-5, atol=1e-5)

@@ -40,6 +40,8 @@ class MapModelConfig:
     bev_cell_m: float = 0.5
     bev_channels: int = 64
     num_queries: int = 60
+    one2many_queries: int = 120  # MapTRv2 hybrid matching: extra training-only queries (0: off)
+    one2many_k: int = 3  # ... matched to the GT repeated this many times
     decoder_layers: int = 3
     decoder_dim: int = 128
     decoder_heads: int = 4
@@ -87,13 +89,16 @@ class MapModelConfig:
 @dataclass(frozen=True)
 class LossConfig:
     """MapTR's weights: focal classification 2, normalised point L1 5, edge direction 0.005; plus the
-    MapTRv2-style auxiliary dense losses (BEV and perspective-view segmentation of the map lines)."""
+    MapTRv2-style auxiliary dense losses (BEV and perspective-view segmentation of the map lines,
+    LiDAR depth of the lift)."""
 
     cls_weight: float = 2.0
     pts_weight: float = 5.0
     dir_weight: float = 0.005
     bev_seg_weight: float = 1.0
     pv_seg_weight: float = 1.0
+    one2many_weight: float = 1.0
+    depth_weight: float = 1.0  # LiDAR depth supervision of the lift (cross-entropy over the depth bins)
     focal_alpha: float = 0.25
     focal_gamma: float = 2.0
 
@@ -112,6 +117,7 @@ class TrainConfig:
     threads: int = 2
     eval_every: int = 500  # 0: evaluate only at the end
     checkpoint_every: int = 250
+    bev_flip: bool = True  # mirror the BEV frame at random (see nuav2.mapping.augment)
     loss: LossConfig = field(default_factory=LossConfig)
 
     def __post_init__(self) -> None:

@@ -21,11 +21,11 @@ import torch
 
 from nuav2.mapping.backbone import STRIDE
 from nuav2.mapping.config import MapModelConfig, fingerprint
-from nuav2.mapping.targets import bev_targets, pv_targets
+from nuav2.mapping.targets import bev_targets, depth_targets, pv_targets
 
 log = logging.getLogger(__name__)
 
-DATA_FORMAT = 1  # bump when what is cached changes
+DATA_FORMAT = 2  # bump when what is cached changes
 
 
 @dataclass
@@ -40,6 +40,7 @@ class MapTensors:
     gt_shifts: list[torch.Tensor]  # per sample (G, V, P, 2) float32, LIDAR_TOP metres, padded variants
     bev_target: torch.Tensor  # (S, K, rows, cols) uint8
     pv_target: torch.Tensor  # (S, N, K, h, w) uint8
+    depth_target: torch.Tensor  # (S, N, h, w) int16 LiDAR depth bin per feature pixel, -1: none
     meta: dict = field(default_factory=dict)
 
     def __len__(self) -> int:
@@ -54,6 +55,7 @@ class MapTensors:
             "gt_shifts": [self.gt_shifts[i] for i in index],
             "bev_target": self.bev_target[index],
             "pv_target": self.pv_target[index],
+            "depth_target": self.depth_target[index],
         }
 
 
@@ -65,6 +67,14 @@ def _tables_key(dataroot: Path, version: str) -> list:
         st = p.stat() if p.is_file() else None
         out.append([name, st.st_size if st else None, st.st_mtime_ns if st else None])
     return out
+
+
+def _lidar_points(dataset, index: int) -> np.ndarray:
+    """The keyframe's LIDAR_TOP sweep (N, 3), from the file its MapTR info record names (as MapTRv2's
+    depth supervision reads it), through the devkit's own reader."""
+    from nuscenes.utils.data_classes import LidarPointCloud
+
+    return LidarPointCloud.from_file(dataset.info(index)["lidar_path"]).points[:3].T
 
 
 def image_scale_for(dataset, cfg: MapModelConfig) -> float:
@@ -103,6 +113,7 @@ def load_map_tensors(
         list(cfg.patch),
         cfg.input_focal_px,
         cfg.bev_cell_m,
+        [cfg.depth_min_m, cfg.depth_max_m, cfg.depth_bins],
         _tables_key(dataroot, version),
     )
     cache = Path(cache_dir) / f"maptensors-{key}.pt" if cache_dir else None
@@ -150,6 +161,20 @@ def load_map_tensors(
                         cfg,
                     )
                     for it in items
+                ]
+            )
+        ),
+        depth_target=torch.from_numpy(
+            np.stack(
+                [
+                    depth_targets(
+                        _lidar_points(ds, i),
+                        it["lidar2img"].double().numpy(),
+                        it["img_shape"].numpy(),
+                        feat_hw,
+                        cfg,
+                    )
+                    for i, it in enumerate(items)
                 ]
             )
         ),

@@ -122,3 +122,13 @@ def dense_loss(logits: torch.Tensor, target: torch.Tensor, valid: torch.Tensor |
         loss = loss * valid
         return loss.sum() / valid.expand_as(loss).sum().clamp(min=1.0)
     return loss.mean()
+
+
+def depth_loss(depth_prob: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """Cross-entropy of the lift's depth distributions (B, N, D, h, w) at pixels with a LiDAR depth
+    bin (``target`` (B, N, h, w), -1 elsewhere)."""
+    valid = target >= 0
+    if not valid.any():
+        return depth_prob.sum() * 0.0
+    p = depth_prob.permute(0, 1, 3, 4, 2)[valid]  # (V, D)
+    return -(p.gather(1, target[valid].long()[:, None]).clamp_min(1e-6).log()).mean()

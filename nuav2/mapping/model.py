@@ -31,7 +31,9 @@ class MapModel(nn.Module):
         for head in (self.bev_seg, self.pv_seg):
             nn.init.constant_(head.bias, prior)
 
-    def forward(self, img: torch.Tensor, lidar2img: torch.Tensor, img_hw: torch.Tensor) -> dict:
+    def forward(
+        self, img: torch.Tensor, lidar2img: torch.Tensor, img_hw: torch.Tensor, one2many: bool = False
+    ) -> dict:
         """``img`` (B, N, 3, H, W) uint8, ``lidar2img`` (B, N, 4, 4) for its pixels, ``img_hw`` (B, N, 2)."""
         B, N = img.shape[:2]
         feats = self.backbone(img.flatten(0, 1))
@@ -39,7 +41,8 @@ class MapModel(nn.Module):
         bev, depth = self.lift(feats.view(B, N, -1, h, w), lidar2img, img_hw)
         bev = self.bev_encoder(bev)
         return {
-            "layers": self.decoder(bev),
+            "layers": self.decoder(bev, one2many),
             "bev_seg": self.bev_seg(bev),
             "pv_seg": self.pv_seg(feats).view(B, N, -1, h, w),
+            "depth": depth,
         }

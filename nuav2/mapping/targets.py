@@ -1,10 +1,13 @@
-"""Dense auxiliary targets (MapTRv2's BEV and perspective-view segmentation) drawn from the GT vectors.
+"""Dense auxiliary targets of MapTRv2: BEV and perspective-view segmentation, and depth.
 
 - BEV: each class's polylines drawn one cell wide into the model's BEV grid (rows = lidar y
   forward, columns = lidar x right; cell centres as in ``grid_sample(align_corners=False)``).
 - Perspective view: the polylines lifted onto the ego ground plane (z_ego = 0, nuScenes-style
   ground-level origin) and projected with each camera's ``lidar2img`` onto its stride-8 feature
   grid, clipped at a near plane (the same geometry ``nuav2 viz`` draws with).
+- Depth (MapTRv2 supervises its lift with LiDAR depth): the keyframe's LIDAR_TOP sweep projected
+  with each camera's ``lidar2img`` (which carries that camera's own ego pose); per feature pixel the
+  nearest return's depth bin, -1 where none falls.
 """
 
 from __future__ import annotations
@@ -69,3 +72,30 @@ def pv_targets(
         for k, xyz in lifted:
             _draw(out[cam, k], project_segments(xyz, P))
     return out
+
+
+def depth_targets(
+    points_lidar: np.ndarray,
+    lidar2img: np.ndarray,
+    img_hw: np.ndarray,
+    feat_hw: tuple[int, int],
+    cfg: MapModelConfig,
+) -> np.ndarray:
+    """(N, h, w) int16 depth-bin index of the nearest LiDAR return in each feature pixel, -1 if none."""
+    n = len(lidar2img)
+    h, w = feat_hw
+    out = np.full((n, h * w), np.inf)
+    hom = np.column_stack([np.asarray(points_lidar, np.float64)[:, :3], np.ones(len(points_lidar))])
+    for cam in range(n):
+        p = hom @ np.asarray(lidar2img[cam], np.float64).T
+        z = p[:, 2]
+        keep = (z >= cfg.depth_min_m) & (z < cfg.depth_max_m)
+        u, v, z = p[keep, 0] / z[keep], p[keep, 1] / z[keep], z[keep]
+        inside = (u >= -0.5) & (v >= -0.5) & (u < img_hw[cam][1] - 0.5) & (v < img_hw[cam][0] - 0.5)
+        cell = (np.floor((v[inside] + 0.5) / STRIDE) * w + np.floor((u[inside] + 0.5) / STRIDE)).astype(
+            np.int64
+        )
+        np.minimum.at(out[cam], cell, z[inside])
+    step = (cfg.depth_max_m - cfg.depth_min_m) / cfg.depth_bins
+    bins = np.where(np.isfinite(out), np.floor((out - cfg.depth_min_m) / step), -1)
+    return np.clip(bins, -1, cfg.depth_bins - 1).astype(np.int16).reshape(n, h, w)

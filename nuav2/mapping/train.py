@@ -24,10 +24,11 @@ import numpy as np
 import torch
 
 from nuav2.atomic import atomic_write_json
+from nuav2.mapping.augment import bev_flip, photometric
 from nuav2.mapping.backbone import STRIDE
 from nuav2.mapping.config import MapModelConfig, TrainConfig, fingerprint
 from nuav2.mapping.data import MapTensors
-from nuav2.mapping.losses import dense_loss, set_loss
+from nuav2.mapping.losses import dense_loss, depth_loss, set_loss
 from nuav2.mapping.model import MapModel
 
 log = logging.getLogger(__name__)
@@ -54,19 +55,6 @@ def learning_rate(cfg: TrainConfig, step: int) -> float:
         return cfg.lr * (step + 1) / cfg.warmup_steps
     t = (step - cfg.warmup_steps) / max(1, cfg.steps - cfg.warmup_steps)
     return cfg.lr * (0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * min(1.0, t))))
-
-
-def photometric(img: torch.Tensor, gen: torch.Generator) -> torch.Tensor:
-    """Per-camera brightness / contrast / colour jitter (MapTR trains with photometric distortion)."""
-    B, N = img.shape[:2]
-    x = img.float()
-    gain = 1.0 + 0.25 * (torch.rand(B, N, 1, 1, 1, generator=gen) - 0.5) * 2
-    colour = 1.0 + 0.08 * (torch.rand(B, N, 3, 1, 1, generator=gen) - 0.5) * 2
-    bias = 20.0 * (torch.rand(B, N, 1, 1, 1, generator=gen) - 0.5) * 2
-    mean = x.mean(dim=(2, 3, 4), keepdim=True)
-    contrast = 1.0 + 0.25 * (torch.rand(B, N, 1, 1, 1, generator=gen) - 0.5) * 2
-    x = (x - mean) * contrast + mean
-    return (x * gain * colour + bias).clamp(0, 255)
 
 
 def run_fingerprint(
@@ -96,15 +84,33 @@ def load_model(run_dir: str | Path) -> MapModel:
 
 
 def _loss(model: MapModel, batch: dict, train_cfg: TrainConfig) -> dict[str, torch.Tensor]:
-    out = model(batch["img"], batch["lidar2img"], batch["img_hw"])
+    cfg = model.cfg
+    one2many = cfg.one2many_queries > 0
+    out = model(batch["img"], batch["lidar2img"], batch["img_hw"], one2many=one2many)
     w = train_cfg.loss
-    losses = set_loss(out["layers"], batch["gt_labels"], batch["gt_shifts"], model.cfg, w)
+    n = cfg.num_queries
+    layers = out["layers"]
+    losses = set_loss(
+        [(c[:, :n], p[:, :n]) for c, p in layers], batch["gt_labels"], batch["gt_shifts"], cfg, w
+    )
+    if one2many:  # MapTRv2 hybrid matching: the extra queries learn from the GT repeated k times
+        k = cfg.one2many_k
+        many = set_loss(
+            [(c[:, n:], p[:, n:]) for c, p in layers],
+            [g.repeat(k) for g in batch["gt_labels"]],
+            [s.repeat(k, 1, 1, 1) for s in batch["gt_shifts"]],
+            cfg,
+            w,
+        )
+        for key, v in many.items():
+            losses[f"{key}_one2many"] = w.one2many_weight * v
     losses["bev_seg"] = w.bev_seg_weight * dense_loss(out["bev_seg"], batch["bev_target"])
     h, w_ = out["pv_seg"].shape[-2:]
     ys = torch.arange(h).view(1, 1, h, 1) * STRIDE + (STRIDE - 1) / 2
     xs = torch.arange(w_).view(1, 1, 1, w_) * STRIDE + (STRIDE - 1) / 2
     inside = ((ys < batch["img_hw"][..., 0, None, None]) & (xs < batch["img_hw"][..., 1, None, None])).float()
     losses["pv_seg"] = w.pv_seg_weight * dense_loss(out["pv_seg"], batch["pv_target"], inside.unsqueeze(2))
+    losses["depth"] = w.depth_weight * depth_loss(out["depth"], batch["depth_target"])
     return losses
 
 
@@ -170,6 +176,8 @@ def train(
             batch = data.batch(batch_indices(len(data), train_cfg.batch_size, train_cfg.seed, step))
             gen = torch.Generator().manual_seed(train_cfg.seed * 1_000_003 + step)
             batch["img"] = photometric(batch["img"], gen)
+            if train_cfg.bev_flip:
+                batch = bev_flip(batch, gen)
             terms = _loss(model, batch, train_cfg)
             total = sum(terms.values())
             if not torch.isfinite(total):
