@@ -11,14 +11,14 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
-import multiprocessing
 import tempfile
 import traceback
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 from nuav2.atomic import atomic_write_json
+from nuav2.executors import EXECUTORS
 from nuav2.image_sources import MODES, image_source_for, write_quality_table
 from nuav2.nuscenes_db import shards as sh
 from nuav2.nuscenes_db.images import IMAGE_LINKS, NativeImages
@@ -26,7 +26,6 @@ from nuav2.nuscenes_db.merge import merge_shards
 from nuav2.nuscenes_db.scene_names import SceneNameError
 from nuav2.nuscenes_db.scene_names import scene_names_for as _scene_names
 from nuav2.nuscenes_db.writer import WRITER_FORMAT, WriterOptions, write_log
-from nuav2.progress import progress_bar
 from nuav2.rig import RigSpecError, load_rig
 
 log = logging.getLogger(__name__)
@@ -52,6 +51,13 @@ class ConvertOptions:
     scale: float = 1.0  # warp / render: target resolution factor
     recon_preset: str = "default"  # render: reconstruction budget preset
     min_confidence: float = 0.0  # render: drop sample times where a camera's confidence is below
+    # Where the logs run (not part of the fingerprint: every executor writes the same shards).
+    executor: str = "local"  # "local" processes or "ray" tasks
+    ray_address: str | None = None  # None: RAY_ADDRESS, else a local Ray instance of `workers` slots
+    cpus_per_task: float | None = None  # Ray: None -> per-mode default (nuav2.executors.ray_tasks)
+    memory_per_task_gb: float | None = None  # Ray: None -> per-mode default; 0: do not reserve memory
+    gpus_per_task: float | None = None  # Ray: None -> 1 in render mode when the cluster has GPUs, else 0
+    max_retries: int = 2  # a log whose worker process (or node) died is retried this many times
 
     def check(self) -> None:
         if self.mode not in MODES:
@@ -62,6 +68,7 @@ class ConvertOptions:
             raise ConvertError(f"--keyframe-hz must be > 0 Hz, got {self.keyframe_hz}")
         if self.workers < 1:
             raise ConvertError(f"--workers must be >= 1, got {self.workers}")
+        self._check_executor()
         if not self.version or "/" in self.version or self.version.startswith("."):
             raise ConvertError(f"--version must be a plain directory name, got {self.version!r}")
         if self.calibration_dir is not None and not Path(self.calibration_dir).is_dir():
@@ -80,6 +87,28 @@ class ConvertOptions:
                 load_rig(self.rig)
             except RigSpecError as e:
                 raise ConvertError(f"--rig: {e}") from e
+
+    def _check_executor(self) -> None:
+        if self.executor not in EXECUTORS:
+            raise ConvertError(f"--executor must be one of {EXECUTORS}, got {self.executor!r}")
+        if self.executor != "ray":
+            for flag, value in (("--ray-address", self.ray_address), ("--cpus-per-task", self.cpus_per_task),
+                                ("--memory-per-task", self.memory_per_task_gb),
+                                ("--gpus-per-task", self.gpus_per_task)):
+                if value is not None:
+                    raise ConvertError(f"{flag} applies to --executor ray only")
+        for flag, value in (("--cpus-per-task", self.cpus_per_task), ("--gpus-per-task", self.gpus_per_task),
+                            ("--memory-per-task", self.memory_per_task_gb),
+                            ("--max-retries", self.max_retries)):
+            if value is not None and not value >= 0:
+                raise ConvertError(f"{flag} must be >= 0, got {value}")
+        if self.cpus_per_task is not None and self.cpus_per_task == 0:
+            raise ConvertError("--cpus-per-task must be > 0")
+        if self.executor == "ray":
+            from nuav2.executors.ray_tasks import RAY_MISSING, ray_available
+
+            if not ray_available():
+                raise ConvertError(RAY_MISSING)
 
     def _rig_key(self) -> str:
         """A rig named by path is identified by its content, so editing the spec redoes the shards."""
@@ -121,6 +150,7 @@ class ConvertReport:
     failed: list[dict] = field(default_factory=list)  # {"log_id", "log_dir", "error"}
     scene_names: dict[str, str] = field(default_factory=dict)
     table_counts: dict[str, int] = field(default_factory=dict)
+    logs: dict[str, dict] = field(default_factory=dict)  # per log run now: seconds, images, mode, worker
 
     @property
     def ok(self) -> bool:
@@ -167,8 +197,11 @@ def earlier_shards(out: Path, version: str, fingerprint: str, this_run: set[str]
     return earlier
 
 
-def convert_one_log(log_dir: Path, dataroot: Path, options: ConvertOptions) -> dict:
-    """Read, write and save the shard of one log; returns ``{"log_id", "error"}`` (error None on success).
+def convert_one_log(log_dir: Path, dataroot: Path, options: ConvertOptions,
+                    after_write: Callable[[str], None] | None = None) -> dict:
+    """Read, write and save the shard of one log; returns ``{"log_id", "log_dir", "error", "images"}``
+    (error None on success). ``after_write(log_id)`` runs between the data files and the shard
+    (the executors' fault-injection point).
 
     Runs in a worker process: every failure of the log becomes a report entry, not an exception.
     """
@@ -187,32 +220,21 @@ def convert_one_log(log_dir: Path, dataroot: Path, options: ConvertOptions) -> d
         quality = getattr(images, "by_file", None)
         if quality:
             shard.meta["image_quality"] = dict(sorted(quality.items()))
+        if after_write is not None:
+            after_write(log_dir.name)
         sh.save_shard(sh.shard_dir(dataroot, options.version, log_dir.name), shard, options.fingerprint())
-        return {"log_id": log_dir.name, "log_dir": str(log_dir), "error": None}
+        n_images = sum(r["fileformat"] != "pcd" for r in shard.tables["sample_data"])
+        return {"log_id": log_dir.name, "log_dir": str(log_dir), "error": None, "images": n_images}
     except Exception as e:  # noqa: BLE001 - one bad log must not stop the others
         log.debug("log %s failed:\n%s", log_dir, traceback.format_exc())
         return {"log_id": log_dir.name, "log_dir": str(log_dir), "error": f"{type(e).__name__}: {e}"}
 
 
 def _run(jobs: list[Path], dataroot: Path, options: ConvertOptions) -> list[dict]:
-    bar = progress_bar(total=len(jobs), desc="convert", unit="log",
-                       disable=not options.show_progress or not jobs)
-    results = []
-    try:
-        if options.workers == 1 or len(jobs) <= 1:
-            for log_dir in jobs:
-                results.append(convert_one_log(log_dir, dataroot, options))
-                bar.update()
-        else:
-            ctx = multiprocessing.get_context("spawn")
-            with ProcessPoolExecutor(max_workers=min(options.workers, len(jobs)), mp_context=ctx) as pool:
-                futures = [pool.submit(convert_one_log, d, dataroot, options) for d in jobs]
-                for fut in as_completed(futures):
-                    results.append(fut.result())
-                    bar.update()
-    finally:
-        bar.close()
-    return sorted(results, key=lambda r: r["log_id"])
+    """Convert ``jobs`` with the chosen executor (local processes or Ray tasks), sorted by log id."""
+    from nuav2.executors import run_logs
+
+    return run_logs(jobs, dataroot, options)
 
 
 def convert_av2(src: Path, out: Path, options: ConvertOptions | None = None) -> ConvertReport:
@@ -245,7 +267,9 @@ def convert_av2(src: Path, out: Path, options: ConvertOptions | None = None) -> 
     if earlier:
         log.info("%s also holds %d log(s) converted earlier with the same options; they are merged too",
                  out, len(earlier))
-    for r in _run(jobs, out, options):
+    results = _run(jobs, out, options)
+    report.logs = {r["log_id"]: r.pop("summary") for r in results}
+    for r in results:
         if r["error"] is None:
             report.converted.append(r["log_id"])
         else:

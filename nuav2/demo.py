@@ -1,23 +1,20 @@
 """``nuav2 demo``: the whole pipeline on the built-in synthetic scene, end to end.
 
-synth an AV2 log -> convert it (render mode: reconstruct + render into the nuScenes rig) ->
-validate the database and load it in the unmodified devkit -> score every rendered image
-against the synthetic world's exact render of the same camera -> write a side-by-side PNG
-(source AV2 views | rendered target views | ground truth).
+Per realism preset: synth an AV2 log -> convert it (render mode: reconstruct + render into the
+nuScenes rig) -> validate the database and load it in the unmodified devkit -> score every
+written image against the synthetic world's exact render of the same camera, over the whole
+image and per region (ground, objects, sky), plus the lane-paint offset -> write a side-by-side
+PNG (source AV2 views | rendered target views | ground truth).
 """
 
 from __future__ import annotations
 
 import json
-import logging
-import time
 from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
 import numpy as np
-
-log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -28,6 +25,7 @@ class DemoOptions:
     rig: str = "nuscenes"
     scale: float = 0.25
     recon_preset: str = "fast"
+    presets: tuple[str, ...] = ("easy",)  # synthetic realism presets, each into OUT/<preset>/
     version: str = "v1.0-nuav2-demo"
     seconds: float = 2.0
     progress: bool = True
@@ -59,46 +57,62 @@ def side_by_side_png(path: Path, source: list[np.ndarray], rendered: list[np.nda
 
 
 def run_demo(options: DemoOptions) -> dict:
-    """Run every stage and return a JSON-able summary (also written to OUT/demo_summary.json)."""
+    """Run every stage per realism preset (into OUT/<preset>/) and return a JSON-able summary with the
+    presets side by side (also written to OUT/demo_summary.json)."""
+    from nuav2.atomic import atomic_write_json
+    from nuav2.bench.cli_args import command_line
+    from nuav2.bench.timing import machine
+
+    start = machine()
+    per_preset = {p: _run_preset(options, p, Path(options.out) / p) for p in options.presets}
+    summary = {"command": command_line(), "mode": options.mode, "rig": options.rig, "scale": options.scale,
+               "seed": options.seed, "seconds": options.seconds,
+               "recon_preset": options.recon_preset if options.mode == "render" else None,
+               "machine_at_start": start, "load_1_5_15_at_end": machine()["load_1_5_15"],
+               "presets": per_preset}
+    atomic_write_json(Path(options.out) / "demo_summary.json", summary, indent=1)
+    return summary
+
+
+def _run_preset(options: DemoOptions, preset: str, out: Path) -> dict:
+    """synth -> convert -> validate + devkit -> score per region -> side-by-side PNG, for one preset."""
     from converters.av2 import read_log
+    from nuav2.bench.timing import Stopwatch
     from nuav2.convert import ConvertOptions, convert_av2
     from nuav2.evaluate.against_world import key_camera_images, log_offsets, score_against_world
     from nuav2.maptr.dataset import load_image_rgb
     from nuav2.nuscenes_db.validate import validate_database
     from nuav2.synth import SynthConfig, generate_log, load_world, render_view
 
-    out = Path(options.out)
-    timings: dict[str, float] = {}
-    t0 = time.perf_counter()
-    log_dir = generate_log(out / "av2", seed=options.seed, config=SynthConfig(seconds=options.seconds),
-                           progress=options.progress)
-    timings["synth_s"] = time.perf_counter() - t0
+    clocks = {k: Stopwatch() for k in ("synth", "convert", "validate", "score")}
+    with clocks["synth"]:
+        config = SynthConfig.for_preset(preset, seconds=options.seconds)
+        log_dir = generate_log(out / "av2", seed=options.seed, config=config, progress=options.progress)
 
-    t0 = time.perf_counter()
     dataroot = out / "nuscenes"
-    report = convert_av2(log_dir, dataroot, ConvertOptions(
-        mode=options.mode, version=options.version, rig=options.rig, scale=options.scale,
-        recon_preset=options.recon_preset, show_progress=options.progress))
-    timings["convert_s"] = time.perf_counter() - t0
+    with clocks["convert"]:
+        report = convert_av2(log_dir, dataroot, ConvertOptions(
+            mode=options.mode, version=options.version, rig=options.rig, scale=options.scale,
+            recon_preset=options.recon_preset, show_progress=options.progress))
+    if report.failed:
+        raise RuntimeError(f"demo conversion failed: {report.failed}")
 
-    t0 = time.perf_counter()
-    validation = validate_database(dataroot, options.version, devkit=True)
-    if not validation.ok:
-        raise RuntimeError(f"demo database failed validation:\n{validation.format_text()}")
-    from nuscenes.nuscenes import NuScenes
+    with clocks["validate"]:
+        validation = validate_database(dataroot, options.version, devkit=True)
+        if not validation.ok:
+            raise RuntimeError(f"demo database failed validation:\n{validation.format_text()}")
+        from nuscenes.nuscenes import NuScenes
 
-    nusc = NuScenes(version=options.version, dataroot=str(dataroot), verbose=False)
-    timings["validate_s"] = time.perf_counter() - t0
+        nusc = NuScenes(version=options.version, dataroot=str(dataroot), verbose=False)
 
-    t0 = time.perf_counter()
-    world = load_world(log_dir)
-    images = key_camera_images(dataroot, options.version, log_offsets(dataroot, options.version))
-    scores = score_against_world(images, world)
-    timings["score_s"] = time.perf_counter() - t0
+    scene = read_log(log_dir)
+    with clocks["score"]:
+        world = load_world(log_dir)
+        images = key_camera_images(dataroot, options.version, log_offsets(dataroot, options.version))
+        quality = score_against_world(images, world, vector_map=scene.vector_map).summary()
 
     # Side-by-side of the middle sample.
     mid = nusc.sample[len(nusc.sample) // 2]
-    scene = read_log(log_dir)
     t_mid = mid["timestamp"] * 1000
     source = []
     for ch in scene.rig.camera_channels:
@@ -113,39 +127,54 @@ def run_demo(options: DemoOptions) -> dict:
     png = out / "demo_side_by_side.png"
     side_by_side_png(png, source, rendered, truth, options.mode)
 
-    per_cam = {ch: s.summary() for ch, s in sorted(scores.items())}
-    summary = {
-        "log_dir": str(log_dir), "dataroot": str(dataroot), "version": options.version, "mode": options.mode,
-        "rig": options.rig, "scale": options.scale, "samples": len(nusc.sample),
-        "sample_data": len(nusc.sample_data), "annotations": len(nusc.sample_annotation),
-        "validation": "ok", "converted_logs": len(report.converted),
-        "psnr_db_mean": float(np.mean([v["psnr_db"] for v in per_cam.values()])),
-        "ssim_mean": float(np.mean([v["ssim"] for v in per_cam.values()])),
-        "per_camera": per_cam, "timings_s": {k: round(v, 2) for k, v in timings.items()},
+    return {
+        "log_dir": str(log_dir), "dataroot": str(dataroot), "version": options.version,
+        "samples": len(nusc.sample), "sample_data": len(nusc.sample_data),
+        "annotations": len(nusc.sample_annotation), "validation": "ok",
+        "converted_logs": len(report.converted),
+        "quality": quality,
+        "timings": {k: {"wall_s": round(c.wall_s[0], 2), "cpu_s": round(c.cpu_s[0], 2),
+                        "load_1min_after": round(c.load[0], 2)} for k, c in clocks.items()},
         "side_by_side_png": str(png),
     }
-    from nuav2.atomic import atomic_write_json
 
-    atomic_write_json(out / "demo_summary.json", summary, indent=1)
-    return summary
+
+def _fmt(v: float | None, spec: str) -> str:
+    return "-" if v is None else format(v, spec)
 
 
 def format_summary(summary: dict) -> str:
-    lines = [
-        f"nuav2 demo: synthetic AV2 log -> {summary['mode']} mode in the {summary['rig']} rig "
-        f"(scale {summary['scale']})",
-        f"  database   {summary['dataroot']} ({summary['version']}): {summary['samples']} samples, "
-        f"{summary['sample_data']} sample_data, {summary['annotations']} boxes; "
-        "validate OK, NuScenes() loads",
-        f"  quality    PSNR {summary['psnr_db_mean']:.2f} dB, SSIM {summary['ssim_mean']:.3f} "
-        "vs ground truth (mean over target cameras)",
-    ]
-    for ch, v in summary["per_camera"].items():
-        lines.append(f"             {ch:<16} PSNR {v['psnr_db']:6.2f} dB  SSIM {v['ssim']:.3f}  "
-                     f"({v['n']} images)")
-    t = summary["timings_s"]
-    lines.append(f"  time       synth {t['synth_s']} s, convert {t['convert_s']} s, "
-                 f"validate {t['validate_s']} s, score {t['score_s']} s")
-    lines.append(f"  picture    {summary['side_by_side_png']}")
-    lines.append(f"  summary    {Path(summary['dataroot']).parent / 'demo_summary.json'}")
-    return "\n".join(lines) + "\n" + json.dumps({"psnr_db_mean": round(summary["psnr_db_mean"], 3)})
+    """Human-readable report: one column per preset, then each preset's per-camera figures."""
+    presets = summary["presets"]
+    names = list(presets)
+    q = {p: presets[p]["quality"] for p in names}
+    t = {p: presets[p]["timings"] for p in names}
+
+    def row(label: str, cells: list[str]) -> str:
+        return f"    {label:<30}" + "".join(f"{c:>18}" for c in cells)
+
+    lines = [f"nuav2 demo: synthetic AV2 log -> {summary['mode']} mode in the {summary['rig']} rig "
+             f"(scale {summary['scale']}); {summary['command']}"]
+    for p, s in presets.items():
+        lines.append(f"  [{p}] {s['dataroot']} ({s['version']}): {s['samples']} samples, {s['sample_data']} "
+                     f"sample_data, {s['annotations']} boxes; validate OK, NuScenes() loads")
+    lines.append(f"  vs ground truth, mean over target cameras (load at start "
+                 f"{summary['machine_at_start']['load_1_5_15']}, at end {summary['load_1_5_15_at_end']})")
+    lines.append(row("preset", names))
+    for region in ("whole", "ground", "objects", "sky"):
+        lines.append(row(f"PSNR dB / SSIM, {region}", [
+            f"{_fmt(q[p]['psnr_db'][region], '.2f')} / {_fmt(q[p]['ssim'][region], '.3f')}" for p in names]))
+    lines.append(row("lane paint px (truth)", [
+        f"{_fmt(q[p]['paint_median_px'], '.2f')} ({_fmt(q[p].get('paint_median_px_truth'), '.2f')})"
+        for p in names]))
+    for stage in ("synth", "convert", "validate", "score"):
+        lines.append(row(f"{stage} s, wall / CPU",
+                         [f"{t[p][stage]['wall_s']:.1f} / {t[p][stage]['cpu_s']:.1f}" for p in names]))
+    for p, s in presets.items():
+        for ch, v in s["quality"]["per_camera"].items():
+            w = v["whole"]
+            lines.append(f"    [{p}] {ch:<16} PSNR {w['psnr_db']:6.2f} dB  SSIM {w['ssim']:.3f}  "
+                         f"({w['images']} images)")
+        lines.append(f"    [{p}] picture {s['side_by_side_png']}")
+    means = {p: q[p]["psnr_db"]["whole"] for p in names}
+    return "\n".join(lines) + "\n" + json.dumps({"psnr_db_mean": means})

@@ -1,4 +1,4 @@
-"""PSNR and SSIM: hand values, an independent scipy SSIM oracle, layouts, gradients, bad input."""
+"""PSNR and SSIM: hand values, an independent scipy SSIM oracle, layouts, gradients, regions, bad input."""
 
 from __future__ import annotations
 
@@ -9,11 +9,16 @@ import pytest
 import torch
 from scipy.ndimage import gaussian_filter
 
-from nuav2.evaluate.image_metrics import gaussian_window_1d, psnr, ssim, ssim_torch
+from nuav2.evaluate.image_metrics import gaussian_window_1d, psnr, region_metrics, ssim, ssim_map, ssim_torch
 
 
 def scipy_ssim(a: np.ndarray, b: np.ndarray, data_range: float) -> float:
     """Wang et al. SSIM of 2-D float64 images with scipy's Gaussian filter, cropped to valid windows."""
+    return float(scipy_ssim_map(a, b, data_range).mean())
+
+
+def scipy_ssim_map(a: np.ndarray, b: np.ndarray, data_range: float) -> np.ndarray:
+    """The per-pixel SSIM map behind :func:`scipy_ssim` (valid window centres only)."""
 
     def blur(x):  # sigma 1.5 truncated at 3.5 sigma -> radius 5 -> an 11-tap window
         return gaussian_filter(x, sigma=1.5, truncate=3.5)
@@ -22,7 +27,7 @@ def scipy_ssim(a: np.ndarray, b: np.ndarray, data_range: float) -> float:
     mu_a, mu_b = blur(a), blur(b)
     var_a, var_b, cov = blur(a * a) - mu_a**2, blur(b * b) - mu_b**2, blur(a * b) - mu_a * mu_b
     s = ((2 * mu_a * mu_b + c1) * (2 * cov + c2)) / ((mu_a**2 + mu_b**2 + c1) * (var_a + var_b + c2))
-    return float(s[5:-5, 5:-5].mean())
+    return s[5:-5, 5:-5]
 
 
 def test_window_is_normalised_gaussian():
@@ -61,6 +66,31 @@ def test_ssim_matches_scipy_oracle_and_layouts():
     per_image = ssim_torch(batch, batch.flip(0), reduction="none")
     assert per_image.shape == (2,) and per_image.dtype == torch.float32
     assert float(per_image[0]) == pytest.approx(want, abs=1e-5)
+
+
+def test_region_metrics_against_the_scipy_map_and_hand_psnr():
+    rng = np.random.default_rng(3)
+    truth = rng.uniform(0, 255, (30, 40, 3))
+    img = truth.copy()
+    img[:12] += rng.normal(0, 20, img[:12].shape)  # error only in the top rows ("sky")
+    sky = np.zeros((30, 40), bool)
+    sky[:12] = True
+    tiny = np.zeros((30, 40), bool)
+    tiny[20, 20:25] = True
+    got = region_metrics(img, truth, {"whole": np.ones_like(sky), "sky": sky, "ground": ~sky, "tiny": tiny},
+                         data_range=255.0)
+    assert got["ground"]["psnr_db"] == 100.0 and got["ground"]["pixels"] == 18 * 40
+    err = (img - truth)[:12]
+    assert got["sky"]["psnr_db"] == pytest.approx(10 * math.log10(255.0**2 / np.mean(err**2)), abs=1e-9)
+    assert got["whole"]["psnr_db"] == pytest.approx(psnr(img, truth, data_range=255.0), abs=1e-12)
+    assert got["whole"]["ssim"] == pytest.approx(ssim(img, truth, data_range=255.0), abs=1e-12)
+    oracle = np.mean([scipy_ssim_map(img[..., c] / 255, truth[..., c] / 255, 1.0) for c in range(3)], axis=0)
+    assert got["sky"]["ssim"] == pytest.approx(oracle[sky[5:-5, 5:-5]].mean(), abs=1e-12)
+    assert got["ground"]["ssim"] < 1.0  # windows centred on the ground near the border see the sky's error
+    assert got["tiny"] is None  # 5 pixels: too few to score
+    assert ssim_map(img, truth, 255.0).shape == (20, 30)
+    with pytest.raises(ValueError, match="mask shape"):
+        region_metrics(img, truth, {"bad": sky[:5]})
 
 
 def test_ssim_hand_cases():

@@ -188,3 +188,37 @@ def test_non_finite_parameters_cull_the_gaussian():
         assert torch.isfinite(g[5:]).all()
     kept = {k: v[5:] for k, v in base.items()}
     assert (rasterize(*leaves(kept, False), np.eye(4), K, W, H).rgb - out.rgb).abs().max() < 1e-6
+
+
+@pytest.mark.parametrize("sh_degree", [None, 1])
+@pytest.mark.parametrize("value", [float("nan"), float("inf"), -float("inf")])
+def test_non_finite_colour_culls_the_gaussian(value, sh_degree):
+    """A NaN/inf colour (or SH coefficient) culls that Gaussian: images and every gradient stay
+    finite and equal those of the scene without it (issue 10, finding 17)."""
+    base = _scene(40, 14, sh_degree=sh_degree)
+    bad = {k: v.clone() for k, v in base.items()}
+    bad["colors"][[3, 17]] = value if sh_degree is None else bad["colors"][[3, 17]]
+    if sh_degree is not None:
+        bad["colors"][3, 2, 1] = value
+        bad["colors"][17, 0, 0] = value
+    kept_ids = [i for i in range(40) if i not in (3, 17)]
+    kept = {k: v[kept_ids] for k, v in base.items()}
+    for fn in (rasterize, rasterize_dense):
+        out, grads = grads_of(fn, bad, np.eye(4), K, W, H, near=NEAR)
+        ref, ref_grads = grads_of(fn, kept, np.eye(4), K, W, H, near=NEAR)
+        assert not out.meta["visible"][0, [3, 17]].any()
+        for image, ref_image in zip(out[:3], ref[:3]):
+            assert torch.isfinite(image).all()
+            assert (image - ref_image).abs().max() < 1e-6
+        for name, g, g_ref in zip(PARAMS, grads, ref_grads):
+            assert torch.isfinite(g).all(), name
+            assert (g[[3, 17]] == 0).all(), name
+            assert (g[kept_ids] - g_ref).abs().max() <= 1e-5 * g_ref.abs().max() + 1e-7, name
+
+
+@pytest.mark.parametrize("value", [float("nan"), float("inf")])
+def test_non_finite_background_is_an_error_naming_it(value):
+    params = _scene(10, 15)
+    for fn in (rasterize, rasterize_dense):
+        with pytest.raises(ValueError, match="background must be finite"):
+            fn(*leaves(params, False), np.eye(4), K, W, H, background=torch.tensor([0.1, value, 0.2]))

@@ -248,6 +248,7 @@ def test_render_source_through_the_real_writer_and_devkit(trained, tiny_scene, t
     n_images = sum(len(v) for v in source.render.coverage.values())
     assert n_images == 6 * len(nusc.sample)
     scores = score_against_world(key_camera_images(tmp_path, version, log_offsets(tmp_path, version)),
-                                 tiny_world)
-    mean_psnr = float(np.mean([np.mean(s.psnr_db) for s in scores.values()]))
-    assert set(scores) == set(out_rig.camera_channels) and mean_psnr >= 19.0  # JPEG q95 costs a little
+                                 tiny_world).summary()
+    mean_psnr = scores["psnr_db"]["whole"]
+    assert set(scores["per_camera"]) == set(out_rig.camera_channels)
+    assert mean_psnr >= 19.0  # JPEG q95 costs a little

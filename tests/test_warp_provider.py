@@ -1,4 +1,4 @@
-"""Warp mode end to end on a synthetic log: against the world's ground truth, the naive baseline, the
+"""Warp mode end to end on a synthetic log: against the world's ground truth, the rotation baseline, the
 map's paint, and through the nuScenes writer into an unmodified NuScenes() and ``validate``."""
 
 from __future__ import annotations
@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from nuscenes.nuscenes import NuScenes
 
+from nuav2.bench.modes import rotation_frame_fn
 from nuav2.bench.paint_alignment import paint_offsets_px, painted_boundary_points
 from nuav2.evaluate.image_metrics import psnr
 from nuav2.geometry import egoS_T_egoT_from_heights
@@ -17,7 +18,6 @@ from nuav2.nuscenes_db.images import ImageSourceError
 from nuav2.nuscenes_db.writer import WriterOptions, write_log
 from nuav2.rig import load_rig
 from nuav2.scene import CameraFrame
-from nuav2.warp.naive import closest_source_camera, resize_to_intrinsics
 from nuav2.warp.provider import WarpConfig, WarpRenderer, read_rgb, warp_image_source
 
 VERSION = "v1.0-warp-test"
@@ -46,11 +46,12 @@ def rig():
 
 @pytest.fixture(scope="module")
 def renders(synth, rig):
-    """Per (channel, time): warp, ground truth, naive baseline, and the target pose (two sample times)."""
+    """Per (channel, time): warp, ground truth, rotation baseline, and the target pose (two sample times)."""
     from nuav2.synth import render_view
 
     scene, world = synth
     renderer = WarpRenderer(scene)
+    rotation = rotation_frame_fn(scene, mosaic=False)
     egoS_T_egoT = egoS_T_egoT_from_heights(scene.rig.origin_height_m, rig.origin_height_m)
     out = {}
     for t in scene.sweep_timestamps_ns[[3, 7]]:
@@ -58,20 +59,18 @@ def renders(synth, rig):
         for cam in rig.cameras:
             city_T_cam = scene.city_T_ego_at(t) @ egoS_T_egoT @ cam.ego_T_cam
             warped = renderer(cam.channel, cam, city_T_cam, t)
-            src = closest_source_camera(cam, scene.rig)
-            frames = scene.camera_frames[src.channel]
-            frame = frames[int(np.argmin([abs(f.timestamp_ns - t) for f in frames]))]
-            naive, _ = resize_to_intrinsics(read_rgb(frame.path, src), src, cam)
-            out[(cam.channel, t)] = (warped, render_view(world, cam, city_T_cam, t), naive, city_T_cam)
+            rotated = rotation([(cam, city_T_cam)], t)[0]
+            out[(cam.channel, t)] = (warped, render_view(world, cam, city_T_cam, t), rotated, city_T_cam)
     return renderer, out
 
 
-def test_warp_beats_the_naive_baseline_on_every_camera(renders, rig):
+def test_warp_beats_the_rotation_baseline_on_every_camera(renders, rig):
+    """Measured on the default scene: the warp leads the rotation homography by 5.6-13 dB per camera."""
     renderer, out = renders
     for cam in rig.cameras:
-        warp_db = [psnr(w, g, data_range=255) for (ch, _), (w, g, n, _) in out.items() if ch == cam.channel]
-        naive_db = [psnr(n, g, data_range=255) for (ch, _), (w, g, n, _) in out.items() if ch == cam.channel]
-        assert np.mean(warp_db) > np.mean(naive_db) + 5.0, (cam.channel, warp_db, naive_db)
+        warp_db = [psnr(w, g, data_range=255) for (ch, _), (w, g, r, _) in out.items() if ch == cam.channel]
+        rot_db = [psnr(r, g, data_range=255) for (ch, _), (w, g, r, _) in out.items() if ch == cam.channel]
+        assert np.mean(warp_db) > np.mean(rot_db) + 4.0, (cam.channel, warp_db, rot_db)
     all_warp = [psnr(w, g, data_range=255) for w, g, _, _ in out.values()]
     assert np.mean(all_warp) > 24.0  # measured ~26-27 dB at this size; the floor leaves JPEG/noise slack
     cov = [v for d in renderer.coverage.values() for v in d.values()]

@@ -8,7 +8,10 @@ paint alignment (map paint projected into the rendered target images vs the pain
 with the same measure on ground truth as the floor).
 
 ``bench_recon`` runs several budgets (iterations x Gaussian budget x training resolution) on
-one log in one process; ratios are against the cheapest budget of the same run.
+one log per realism preset and seed, in one process (one after another, not interleaved: a
+reconstruction is one long job); ratios are against the cheapest budget of the same log. Target
+quality is reported per region (whole, ground, objects, sky), and over seeds as mean and spread,
+the seed the reconstruction presets were tuned on (``TUNED``) apart.
 """
 
 from __future__ import annotations
@@ -20,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from nuav2.bench.timing import Stopwatch, machine
 from nuav2.rig import load_rig
 from nuav2.scene import SceneLog
 from nuav2.splat.render_target import target_city_T_cams, to_uint8
@@ -27,6 +31,8 @@ from nuav2.splat.scene_model import SplatScene
 
 DEFAULT_TARGET_RIG = "nuscenes"
 DEFAULT_TARGET_SCALE = 0.125  # nuScenes 1600x900 -> 200x112, the resolution of the default synthetic log
+# (synthetic preset, seed) the reconstruction presets were tuned on; every other seed is unseen.
+TUNED = frozenset({("easy", 0)})
 
 
 def eval_times(scene: SceneLog, n: int) -> np.ndarray:
@@ -38,58 +44,50 @@ def eval_times(scene: SceneLog, n: int) -> np.ndarray:
 
 def target_rig_scores(splat: SplatScene, scene: SceneLog, world, *, rig: str = DEFAULT_TARGET_RIG,
                       scale: float = DEFAULT_TARGET_SCALE, n_times: int = 6, paint: bool = True) -> dict:
-    """PSNR/SSIM per target camera vs the world's ground truth, and lane-paint alignment."""
+    """PSNR/SSIM per target camera vs the world's ground truth, over the whole image and per region
+    (``regions``), and lane-paint alignment (with ground truth's own offset as the floor)."""
     import torch
 
-    from nuav2.bench.paint_alignment import paint_offsets_px, painted_boundary_points
-    from nuav2.evaluate.image_metrics import psnr, ssim
-    from nuav2.synth import render_view
+    from nuav2.evaluate.against_world import RegionScores, truth_view
 
     target = load_rig(rig, scale=scale)
-    per_cam: dict[str, dict[str, list[float]]] = {c.channel: {"psnr": [], "ssim": []} for c in target.cameras}
-    paint_pts = painted_boundary_points(scene.vector_map) if (paint and scene.vector_map) else None
-    off_render, off_truth = [], []
+    scores = RegionScores.for_map(scene.vector_map if paint else None)
     t0 = time.perf_counter()
-    n_images = 0
     for t in eval_times(scene, n_times):
         poses = target_city_T_cams(scene, target, int(t))
         for cam in target.cameras:
-            truth = render_view(world, cam, poses[cam.channel], int(t))
+            truth, labels = truth_view(world, cam, poses[cam.channel], int(t))
             with torch.no_grad():
                 img = to_uint8(splat.render(cam, poses[cam.channel], int(t)).rgb)
-            n_images += 1
-            per_cam[cam.channel]["psnr"].append(psnr(img / 255.0, truth / 255.0))
-            per_cam[cam.channel]["ssim"].append(ssim(img / 255.0, truth / 255.0))
-            if paint_pts is not None and len(paint_pts[0]):
-                off_render.append(paint_offsets_px(img, cam, poses[cam.channel], *paint_pts))
-                off_truth.append(paint_offsets_px(truth, cam, poses[cam.channel], *paint_pts))
+            scores.add(cam, poses[cam.channel], img, truth, labels, with_paint_floor=True)
     seconds = time.perf_counter() - t0
-    cams = {ch: {"psnr_db": float(np.mean(v["psnr"])), "ssim": float(np.mean(v["ssim"]))}
-            for ch, v in per_cam.items()}
-    out = {"rig": rig, "scale": scale, "images": n_images, "render_and_truth_s": seconds,
-           "psnr_db": float(np.mean([c["psnr_db"] for c in cams.values()])),
-           "ssim": float(np.mean([c["ssim"] for c in cams.values()])), "per_camera": cams}
-    if off_render:
-        r, g = np.concatenate(off_render), np.concatenate(off_truth)
-        out["paint"] = {"median_px_render": float(np.median(r)) if len(r) else None,
-                        "median_px_truth": float(np.median(g)) if len(g) else None,
-                        "points_render": int(len(r)), "points_truth": int(len(g))}
+    q = scores.summary()
+    cams = {ch: {"psnr_db": v["whole"]["psnr_db"], "ssim": v["whole"]["ssim"]}
+            for ch, v in q["per_camera"].items()}
+    out = {"rig": rig, "scale": scale, "images": q["images"], "render_and_truth_s": seconds,
+           "psnr_db": q["psnr_db"]["whole"], "ssim": q["ssim"]["whole"], "per_camera": cams,
+           "regions": {"psnr_db": q["psnr_db"], "ssim": q["ssim"]}}
+    if scores.paint_points is not None:
+        out["paint"] = {"median_px_render": q["paint_median_px"], "points_render": q["paint_points"],
+                        "median_px_truth": q["paint_median_px_truth"],
+                        "points_truth": q["paint_points_truth"]}
     return out
 
 
 def render_whole_log_s(splat: SplatScene, scene: SceneLog, *, rig: str = DEFAULT_TARGET_RIG,
-                       scale: float = DEFAULT_TARGET_SCALE) -> float:
-    """Seconds to render every target camera at every sweep time (what render mode writes)."""
+                       scale: float = DEFAULT_TARGET_SCALE) -> Stopwatch:
+    """Wall and CPU seconds to render every target camera at every sweep time (what render mode writes)."""
     import torch
 
     target = load_rig(rig, scale=scale)
-    t0 = time.perf_counter()
-    for t in scene.sweep_timestamps_ns:
-        poses = target_city_T_cams(scene, target, int(t))
-        for cam in target.cameras:
-            with torch.no_grad():
-                to_uint8(splat.render(cam, poses[cam.channel], int(t)).rgb)
-    return time.perf_counter() - t0
+    sw = Stopwatch()
+    with sw:
+        for t in scene.sweep_timestamps_ns:
+            poses = target_city_T_cams(scene, target, int(t))
+            for cam in target.cameras:
+                with torch.no_grad():
+                    to_uint8(splat.render(cam, poses[cam.channel], int(t)).rgb)
+    return sw
 
 
 def heldout_psnr(splat: SplatScene, scene: SceneLog) -> dict | None:
@@ -144,48 +142,113 @@ def config_for(budget: dict, holdout_every: int):
                    train=replace(base.train, iterations=n, densify=dens))
 
 
-def bench_recon(log_dir: str | Path | None = None, *, seed: int = 0, budgets: list[dict] | None = None,
-                holdout_every: int = 5, n_times: int = 6, progress: bool = False) -> dict:
-    """Speed-against-error table on a synthetic log (generated with defaults if ``log_dir`` is None)."""
+def _one_log(log_dir: Path, budgets: list[dict], holdout_every: int, n_times: int,
+             progress: bool) -> list[dict]:
+    """Every budget on one log (one reconstruction each, in order), scored in the target rig."""
     from converters.av2 import read_log
     from nuav2.recon import reconstruct
-    from nuav2.synth import generate_log, load_world
+    from nuav2.synth import load_world
 
-    with tempfile.TemporaryDirectory(prefix="nuav2-bench-recon-") as tmp:
-        if log_dir is None:
-            t0 = time.perf_counter()
-            log_dir = generate_log(Path(tmp), seed=seed)
-            gen_s = time.perf_counter() - t0
-        else:
-            gen_s = 0.0
-        scene = read_log(Path(log_dir))
-        world = load_world(Path(log_dir))
-        rows = []
-        for b in budgets or default_budgets():
-            cfg = config_for(b, holdout_every)
-            t0 = time.perf_counter()
+    scene = read_log(Path(log_dir))
+    world = load_world(Path(log_dir))
+    rows = []
+    for b in budgets:
+        cfg = config_for(b, holdout_every)
+        sw = Stopwatch()
+        with sw:
             splat = reconstruct(scene, cfg, progress=progress)
-            wall = time.perf_counter() - t0
-            row = {**b, "recon_s": wall, "final_gaussians": splat.num_gaussians(),
-                   "init_s": splat.info.get("init_seconds")}
-            row["render_log_s"] = render_whole_log_s(splat, scene)
-            row["recon_plus_render_s"] = wall + row["render_log_s"]
-            t1 = time.perf_counter()
-            row["target"] = target_rig_scores(splat, scene, world, n_times=n_times)
-            row["target_render_s"] = time.perf_counter() - t1
-            row["heldout"] = heldout_psnr(splat, scene)
-            rows.append(row)
-        base = rows[0]
-        for r in rows:
-            r["time_ratio"] = r["recon_s"] / max(base["recon_s"], 1e-9)
-            r["target_psnr_gain_db"] = r["target"]["psnr_db"] - base["target"]["psnr_db"]
-        return {"log_id": scene.log_id, "seed": seed, "generate_s": gen_s,
-                "source_images": int(sum(len(v) for v in scene.camera_frames.values())),
-                "baseline": base["name"], "rows": rows}
+        row = {**b, "log_id": scene.log_id, "recon_s": sw.wall_s[0], "recon_cpu_s": sw.cpu_s[0],
+               "load_1min_after_recon": sw.load[0], "final_gaussians": splat.num_gaussians(),
+               "init_s": splat.info.get("init_seconds")}
+        render = render_whole_log_s(splat, scene)
+        row |= {"render_log_s": render.wall_s[0], "render_log_cpu_s": render.cpu_s[0],
+                "frames": len(scene.sweep_timestamps_ns)}
+        row["recon_plus_render_s"] = sw.wall_s[0] + render.wall_s[0]
+        t1 = time.perf_counter()
+        row["target"] = target_rig_scores(splat, scene, world, n_times=n_times)
+        row["target_render_s"] = time.perf_counter() - t1
+        row["heldout"] = heldout_psnr(splat, scene)
+        rows.append(row)
+    base = rows[0]
+    for r in rows:
+        r["time_ratio"] = r["recon_s"] / max(base["recon_s"], 1e-9)
+        r["target_psnr_gain_db"] = r["target"]["psnr_db"] - base["target"]["psnr_db"]
+    return rows
+
+
+def bench_recon(log_dir: str | Path | None = None, *, seed: int = 0, seeds: tuple[int, ...] | None = None,
+                presets: tuple[str, ...] = ("easy",), budgets: list[dict] | None = None,
+                holdout_every: int = 5, n_times: int = 6, synth_overrides: dict | None = None,
+                command: str | None = None, progress: bool = False) -> dict:
+    """Speed-against-error rows for each (preset, seed, budget) in one process, and per (preset, budget)
+    the mean and spread over the seeds the reconstruction presets were not tuned on.
+
+    With ``log_dir`` (a synthetic log) only that log is measured; otherwise one log is generated per
+    preset and seed (``seeds``, default ``(seed,)``), ``synth_overrides`` changing its SynthConfig.
+    """
+    from nuav2.synth import SynthConfig, generate_log
+
+    budgets = budgets or default_budgets()
+    start = machine()
+    rows: list[dict] = []
+    gen_s: dict[str, float] = {}
+    if log_dir is not None:
+        for r in _one_log(Path(log_dir), budgets, holdout_every, n_times, progress):
+            rows.append({"preset": None, "seed": None, "tuned": False, **r})
+    else:
+        for preset in presets:
+            for sd in seeds or (seed,):
+                with tempfile.TemporaryDirectory(prefix="nuav2-bench-recon-") as tmp:
+                    t0 = time.perf_counter()
+                    config = SynthConfig.for_preset(preset, **(synth_overrides or {}))
+                    log = generate_log(Path(tmp), seed=sd, config=config)
+                    gen_s[f"{preset}/{sd}"] = round(time.perf_counter() - t0, 2)
+                    for r in _one_log(log, budgets, holdout_every, n_times, progress):
+                        rows.append({"preset": preset, "seed": sd, "tuned": (preset, sd) in TUNED, **r})
+    return {"command": command, "interleaved": False, "machine_at_start": start,
+            "load_1_5_15_at_end": machine()["load_1_5_15"], "generate_s": gen_s,
+            "tuned_on": [{"preset": p, "seed": s} for p, s in sorted(TUNED)],
+            "baseline": rows[0]["name"], "rows": rows, "over_seeds": over_seeds(rows)}
+
+
+def _row_figures(r: dict) -> dict[str, float | None]:
+    t = r["target"]
+    return {**{f"psnr_{k}": v for k, v in t["regions"]["psnr_db"].items()},
+            **{f"ssim_{k}": v for k, v in t["regions"]["ssim"].items()},
+            "paint_px": (t.get("paint") or {}).get("median_px_render"),
+            "paint_px_truth": (t.get("paint") or {}).get("median_px_truth"),
+            "recon_s": r["recon_s"], "recon_cpu_s": r["recon_cpu_s"],
+            "render_s_per_frame": r["render_log_s"] / max(1, r["frames"])}
+
+
+def over_seeds(rows: list[dict]) -> list[dict]:
+    """Per (preset, budget): the tuned seed's figures apart, and mean / sample std / min / max over the
+    other seeds (std is None with one seed)."""
+    out = []
+    keys = list(dict.fromkeys((r["preset"], r["name"]) for r in rows))
+    for preset, name in keys:
+        group = [r for r in rows if (r["preset"], r["name"]) == (preset, name)]
+        untuned = [_row_figures(r) for r in group if not r["tuned"]]
+        entry: dict = {"preset": preset, "budget": name,
+                       "seeds": [r["seed"] for r in group if not r["tuned"]]}
+        tuned = [r for r in group if r["tuned"]]
+        if tuned:
+            entry["tuned_seed"] = {"seed": tuned[0]["seed"], **_row_figures(tuned[0])}
+        stats = {}
+        for k in (untuned[0] if untuned else {}):
+            v = np.array([u[k] for u in untuned if u[k] is not None], float)
+            if len(v):
+                stats[k] = {"mean": float(v.mean()), "std": float(v.std(ddof=1)) if len(v) > 1 else None,
+                            "min": float(v.min()), "max": float(v.max())}
+        entry["untuned"] = stats
+        out.append(entry)
+    return out
 
 
 def plot_bench(result: dict, path: str | Path) -> None:
-    """PNG of target-rig and held-out PSNR against reconstruction wall time, one point per budget."""
+    """PNG of target-rig PSNR (whole image and ground) and held-out PSNR against reconstruction CPU time
+    (all threads: on a shared machine wall time mostly measures the other jobs), one point per budget,
+    for the first log of ``result`` (its preset and seed in the title)."""
     import io
 
     import matplotlib
@@ -195,19 +258,21 @@ def plot_bench(result: dict, path: str | Path) -> None:
 
     from nuav2.atomic import atomic_write_bytes
 
-    rows = result["rows"]
-    t = [r["recon_s"] for r in rows]
+    first = result["rows"][0]
+    rows = [r for r in result["rows"] if (r["preset"], r["seed"]) == (first["preset"], first["seed"])]
+    t = [r["recon_cpu_s"] for r in rows]
     fig, ax = plt.subplots(figsize=(6.4, 4.0), dpi=110)
     ax.plot(t, [r["target"]["psnr_db"] for r in rows], "o-", label="target rig (nuScenes) vs truth")
-    held = [(r["recon_s"], r["heldout"]["psnr_db"]) for r in rows if r.get("heldout")]
+    ax.plot(t, [r["target"]["regions"]["psnr_db"]["ground"] for r in rows], "^:", label="target rig, ground")
+    held = [(r["recon_cpu_s"], r["heldout"]["psnr_db"]) for r in rows if r.get("heldout")]
     if held:
         ax.plot(*zip(*held), "s--", label="held-out source views")
     for r in rows:
-        ax.annotate(r["name"], (r["recon_s"], r["target"]["psnr_db"]), textcoords="offset points",
+        ax.annotate(r["name"], (r["recon_cpu_s"], r["target"]["psnr_db"]), textcoords="offset points",
                     xytext=(4, -12), fontsize=8)
-    ax.set_xlabel("reconstruction wall time (s, 2 threads)")
+    ax.set_xlabel("reconstruction CPU time (s, 2 threads together)")
     ax.set_ylabel("PSNR (dB)")
-    ax.set_title(f"nuav2 bench recon, synthetic seed {result['seed']}")
+    ax.set_title(f"nuav2 bench recon, synthetic preset {first['preset']}, seed {first['seed']}")
     ax.grid(alpha=0.3)
     ax.legend(loc="lower right", fontsize=8)
     fig.tight_layout()

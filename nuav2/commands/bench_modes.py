@@ -1,4 +1,4 @@
-"""``nuav2 bench modes --json``: native vs warp vs render: time per frame and PSNR/SSIM vs ground truth."""
+"""``nuav2 bench modes``: rotation baseline vs warp vs render, interleaved: time per frame, region quality."""
 
 from __future__ import annotations
 
@@ -12,32 +12,48 @@ from nuav2.cli import group
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = group("bench", "benchmarks").add_parser(
         "modes",
-        help="native / warp / render: wall time per frame and target-rig PSNR/SSIM against ground truth",
-        description="Generates the default synthetic AV2 log, renders the target rig's cameras at every "
-                    "sample time with each mode, and scores them against the synthetic world's exact images "
-                    "of the same cameras (see docs/modes.md).",
+        help="rotation baseline / warp / render: time per frame (wall + CPU, interleaved) and region quality",
+        description="Generates synthetic AV2 logs (per realism preset and log length), renders the target "
+                    "rig's cameras at every sweep with each candidate, frame by frame in turn, and scores "
+                    "them against the synthetic world's exact images per region (see docs/modes.md).",
     )
+    p.add_argument("--preset", default="easy", help="synthetic realism preset(s): easy,medium,hard or all")
+    p.add_argument("--seconds", default="2", help="log length(s) in seconds, comma-separated (e.g. 2,15)")
     p.add_argument("--seed", type=int, default=0, help="synthetic scene seed")
-    p.add_argument("--seconds", type=float, default=None, help="log length (default: SynthConfig's)")
+    p.add_argument("--image-scale", type=float, default=None,
+                   help="AV2 camera resolution factor of the synthetic log (default: the preset's, 1/8)")
     p.add_argument("--rig", default="nuscenes", help="target rig name or JSON path")
     p.add_argument("--scale", type=float, default=0.16, help="target rig resolution factor")
     p.add_argument("--frame-step", type=int, default=1, help="use every k-th sweep as a frame")
     p.add_argument("--no-render", action="store_true", help="skip the Gaussian-splat render mode")
-    p.add_argument("--recon-preset", choices=["default", "fast"], default="default",
+    p.add_argument("--recon-preset", choices=["default", "fast"], default="fast",
                    help="reconstruction settings for render mode")
-    p.add_argument("--work-dir", type=Path, default=None, help="keep the synthetic log here (default: temp)")
+    p.add_argument("--work-dir", type=Path, default=None, help="keep the synthetic logs here (default: temp)")
+    p.add_argument("--out", type=Path, default=None, help="also write the JSON here")
+    p.add_argument("--markdown", type=Path, default=None,
+                   help="also write the docs' markdown tables (with how they were measured) here")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.add_argument("--json", action="store_true", help="compact JSON (default: indented)")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    from nuav2.atomic import atomic_write_json
+    from nuav2.bench.cli_args import command_line, parse_floats, parse_presets
     from nuav2.bench.modes import bench_modes
-    from nuav2.synth import SynthConfig
 
-    config = SynthConfig() if args.seconds is None else SynthConfig(seconds=args.seconds)
-    result = bench_modes(seed=args.seed, config=config, rig_name=args.rig, scale=args.scale,
+    presets = parse_presets(args.preset)  # a bad value: one line from nuav2.cli
+    seconds = parse_floats(args.seconds, "--seconds")
+    result = bench_modes(presets, seconds, command=command_line(), seed=args.seed,
+                         image_scale=args.image_scale, rig_name=args.rig, scale=args.scale,
                          frame_step=args.frame_step, with_render=not args.no_render,
                          recon_preset=args.recon_preset, work_dir=args.work_dir, progress=not args.quiet)
+    if args.out is not None:
+        atomic_write_json(args.out, result, indent=1)
+    if args.markdown is not None:
+        from nuav2.atomic import atomic_write_bytes
+        from nuav2.bench.markdown import modes_markdown
+
+        atomic_write_bytes(args.markdown, modes_markdown(result).encode())
     print(json.dumps(result, indent=None if args.json else 1))
     return 0

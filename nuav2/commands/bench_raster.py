@@ -1,4 +1,4 @@
-"""``nuav2 bench raster``: CPU Gaussian rasterizer timings against the dense torch reference, as JSON."""
+"""``nuav2 bench raster``: our CPU rasterizer against gsplat's PyTorch path, interleaved, as JSON."""
 
 from __future__ import annotations
 
@@ -18,40 +18,55 @@ def _size(text: str) -> tuple[int, int]:
     return w, h
 
 
+SCENES = ("near_splats", "street")          # nuav2.bench.raster.SCENES (not imported here: torch is slow)
+
+
 def register(subparsers: argparse._SubParsersAction) -> None:
     sub = group("bench", "benchmarks")
     p = sub.add_parser(
         "raster",
-        help="Gaussian rasterizer forward / forward+backward timings (CPU kernels vs dense reference)",
-        description="Renders a synthetic street of Gaussians with nuav2.splat.rasterize and reports "
-        "forward and forward+backward wall time, peak memory and the speed-up over the dense "
-        "plain-torch reference (timed in the same run on a crop where it fits in memory).",
+        help="Gaussian rasterizer fwd+bwd: ours vs gsplat's PyTorch path on CPU, per stage, vs the floor",
+        description="Renders two synthetic scenes (a street; seeded near, big splats at 2-80 m) with "
+        "nuav2.splat.rasterize on 1 and on all threads, and with gsplat's own PyTorch rendering on "
+        "the CPU when gsplat is installed, interleaved step by step in one process. Reports wall and "
+        "CPU time, load, peak memory, the image difference, per-stage times, and Gaussian-pixel "
+        "contributions against the machine's measured exp+FMA rate (fraction of the roofline).",
     )
-    p.add_argument("--quick", action="store_true", help="only 240x135/10k and 480x270/100k")
+    p.add_argument("--quick", action="store_true", help="small sizes only: 240x135/10k and 480x270/30k")
+    p.add_argument("--scenes", nargs="+", choices=sorted(SCENES), default=None, help="scenes (default: both)")
     p.add_argument("--sizes", type=_size, nargs="+", default=None, metavar="WxH",
-                   help="image sizes (default 240x135 480x270 960x540)")
-    p.add_argument("--counts", type=int, nargs="+", default=None, metavar="N",
-                   help="Gaussian counts (default 10000 100000 300000)")
-    p.add_argument("--repeats", type=int, default=3, help="timed repetitions per case (median reported)")
-    p.add_argument("--no-dense", action="store_true", help="skip the dense-reference comparison")
+                   help="image sizes, each paired with every --counts (default 480x270/100k, 960x540/100k, "
+                   "1600x900/300k)")
+    p.add_argument("--counts", type=int, nargs="+", default=None, metavar="N", help="Gaussian counts")
+    p.add_argument("--repeats", type=int, default=5, help="interleaved rounds per case (min and median)")
+    p.add_argument("--no-gsplat", action="store_true", help="skip gsplat's PyTorch reference")
+    p.add_argument("--gsplat-max-contributions", type=int, default=None, metavar="N",
+                   help="skip gsplat's reference on cases with more Gaussian-pixel contributions than this "
+                   "(it holds them all in memory, about 200 B each; default 20,000,000)")
     p.add_argument("--json", action="store_true", help="compact one-line JSON (default: indented)")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    from nuav2.bench.raster import default_cases, run_raster_bench
+    from nuav2.bench.raster import GSPLAT_MAX_CONTRIBUTIONS, default_cases, run_raster_bench
 
     if args.repeats < 1:
         raise SystemExit("--repeats must be >= 1")
+    scenes = args.scenes or sorted(SCENES)
     if args.sizes or args.counts:
-        base = default_cases(False)
-        sizes = args.sizes or sorted({(w, h) for w, h, _ in base}, key=lambda s: s[0])
-        counts = args.counts or sorted({n for _, _, n in base})
-        if any(n < 0 for n in counts):
+        if not (args.sizes and args.counts):
+            raise SystemExit("--sizes and --counts go together")
+        if any(n < 0 for n in args.counts):
             raise SystemExit("--counts must be >= 0")
-        cases = [(w, h, n) for w, h in sizes for n in counts]
+        cases = [(s, w, h, n) for s in scenes for w, h in args.sizes for n in args.counts]
     else:
-        cases = default_cases(args.quick)
-    result = run_raster_bench(cases, repeats=args.repeats, dense=not args.no_dense)
+        cases = default_cases(args.quick, scenes)
+    budget = args.gsplat_max_contributions
+    if budget is None:
+        budget = GSPLAT_MAX_CONTRIBUTIONS
+    if budget < 0:
+        raise SystemExit("--gsplat-max-contributions must be >= 0")
+    result = run_raster_bench(cases, repeats=args.repeats, reference=not args.no_gsplat,
+                              max_contributions=budget)
     print(json.dumps(result, indent=None if args.json else 1))
     return 0

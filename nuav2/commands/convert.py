@@ -28,7 +28,10 @@ def _options(args: argparse.Namespace):  # -> nuav2.convert.ConvertOptions (impo
     return ConvertOptions(mode=args.mode, version=args.version, keyframe_hz=args.keyframe_hz,
                           workers=args.workers, image_link=args.image_link,
                           calibration_dir=args.calibration, require_cameras=not args.allow_missing_cameras,
-                          show_progress=not args.no_progress, **given)
+                          show_progress=not args.no_progress, executor=args.executor,
+                          ray_address=args.ray_address, cpus_per_task=args.cpus_per_task,
+                          memory_per_task_gb=args.memory_per_task, gpus_per_task=args.gpus_per_task,
+                          max_retries=args.max_retries, **given)
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -43,6 +46,24 @@ def _run(args: argparse.Namespace) -> int:
     for f in report.failed:
         print(f"failed: {f['log_dir']}: {f['error']}", file=sys.stderr)
     return 1 if report.failed else 0
+
+
+def _add_executor_args(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("executor", "where the logs run (see docs/cluster.md)")
+    g.add_argument("--executor", choices=["local", "ray"], default="local",
+                   help="local processes (default) or one Ray task per log (needs nuav2[ray])")
+    g.add_argument("--ray-address", default=None,
+                   help="Ray cluster to use (e.g. auto, HOST:6379, ray://HOST:10001); default: RAY_ADDRESS, "
+                        "else a local Ray instance")
+    g.add_argument("--cpus-per-task", type=float, default=None,
+                   help="Ray: CPUs per log (default: 1 native/warp, 2 render)")
+    g.add_argument("--memory-per-task", type=float, default=None, metavar="GIB",
+                   help="Ray: memory reserved per log in GiB (default: 2 native, 4 warp, 8 render; 0: none)")
+    g.add_argument("--gpus-per-task", type=float, default=None,
+                   help="Ray: GPUs per log (default: 1 in render mode when the cluster has GPUs, else 0)")
+    g.add_argument("--max-retries", type=int, default=2,
+                   help="retries of a log whose worker process or node died (default: %(default)s); a log "
+                        "that fails on its own input is reported, not retried")
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -72,7 +93,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--version", default="v1.0-nuav2", help="table directory name (default: %(default)s)")
     p.add_argument("--keyframe-hz", type=float, default=None,
                    help="sample rate; default every LiDAR sweep (10 Hz); 2 gives nuScenes-like samples")
-    p.add_argument("--workers", type=int, default=1, help="parallel processes, one log each")
+    p.add_argument("--workers", type=int, default=1,
+                   help="parallel processes, one log each (with --executor ray and no address: the slots "
+                        "of the local Ray instance)")
+    _add_executor_args(p)
     p.add_argument("--image-link", choices=["copy", "hardlink", "symlink"], default="copy",
                    help="how native images reach OUT (default: %(default)s)")
     p.add_argument("--calibration", type=Path, default=None,

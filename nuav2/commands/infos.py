@@ -34,26 +34,40 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         default="",
         help="prefix written instead of DATAROOT in file paths (e.g. ./data/nuav2 for MapTR)",
     )
+    p.add_argument("--workers", type=int, default=1,
+                   help="processes (or Ray actors) making the records, each holding the tables in memory; "
+                        "with --executor ray, 1 means one actor per cluster CPU")
+    p.add_argument("--executor", choices=["local", "ray"], default="local",
+                   help="local processes (default) or Ray actors (needs nuav2[ray]; see docs/cluster.md)")
+    p.add_argument("--ray-address", default=None, help="Ray cluster (default: RAY_ADDRESS, else a local one)")
+    p.add_argument("--no-progress", action="store_true", help="no progress display")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    from nuav2.cli import require_database
+    from nuav2.cli import UsageError, require_database
+    from nuav2.devkit_compat import HOOK_DIR
+    from nuav2.executors.ray_tasks import RayMissingError
     from nuav2.maptr.infos import export_infos
 
     require_database(args.dataroot, args.version)
-    written = export_infos(
-        args.dataroot,
-        args.version,
-        args.out,
-        args.prefix,
-        args.splits,
-        args.max_sweeps,
-        tuple(args.patch),
-        args.path_root,
-    )
-    from nuav2.devkit_compat import HOOK_DIR
-
+    try:
+        written = export_infos(
+            args.dataroot,
+            args.version,
+            args.out,
+            args.prefix,
+            args.splits,
+            args.max_sweeps,
+            tuple(args.patch),
+            args.path_root,
+            workers=max(1, args.workers),
+            executor=args.executor,
+            ray_address=args.ray_address,
+            progress=not args.no_progress,
+        )
+    except RayMissingError as e:
+        raise UsageError(str(e)) from e
     print(json.dumps({split: str(path) for split, path in written.items()}, indent=1))
     # MapTR's own tools run in an older stack where nuav2 is not installed; this lets them open the maps.
     print(f"MapTR's tools (nuscenes-devkit 1.1.x) open the av2-* map locations with PYTHONPATH={HOOK_DIR}",

@@ -1,8 +1,11 @@
-"""Score a written database's camera images against a synthetic world's exact renders.
+"""Score camera images against a synthetic world's exact renders, per region, with lane paint.
 
-Poses come from the database itself (ego_pose + calibrated_sensor, read back from the JSON
-as the devkit would), so this checks the whole chain: frame alignment, target extrinsics,
-timestamps and the pixels.
+:class:`RegionScores` collects, per camera, PSNR / SSIM over the whole image and over the ground,
+objects and sky regions (the world's own labels of the true image; ego-body pixels count nowhere),
+and the lane-paint offset (:mod:`nuav2.bench.paint_alignment`). The benchmarks and the demo all
+score with it. For a written database, poses come from the database itself (ego_pose +
+calibrated_sensor, read back from the JSON as the devkit would), so that checks the whole chain:
+frame alignment, target extrinsics, timestamps and the pixels.
 """
 
 from __future__ import annotations
@@ -13,20 +16,97 @@ from pathlib import Path
 
 import numpy as np
 
-from nuav2.evaluate.image_metrics import psnr, ssim
+from nuav2.evaluate.image_metrics import region_metrics
 from nuav2.geometry import F64, T_from_quat_trans, translation_T
 from nuav2.maptr.dataset import load_image_rgb
 from nuav2.rig import CameraSpec
+from nuav2.scene import VectorMap
+
+REGIONS = ("whole", "ground", "objects", "sky")
+
+
+def world_region_masks(labels: np.ndarray) -> dict[str, np.ndarray]:
+    """{region: bool (H, W)} from the synthetic renderer's labels; "whole" is every pixel but the ego body.
+    Static structure (buildings, poles) is part of "whole" only."""
+    from nuav2.synth import REGION_LABELS
+
+    return {"whole": labels != REGION_LABELS["ego"], "ground": labels == REGION_LABELS["ground"],
+            "objects": labels == REGION_LABELS["objects"], "sky": labels == REGION_LABELS["sky"]}
+
+
+def truth_view(world, camera: CameraSpec, city_T_cam: F64,
+               timestamp_ns: int) -> tuple[np.ndarray, np.ndarray]:
+    """(uint8 RGB, region labels) of the world's exact image of ``camera`` at ``city_T_cam`` and time."""
+    from nuav2.synth import render_view
+
+    return render_view(world, camera, city_T_cam, int(timestamp_ns), with_labels=True)
+
+
+def _mean(values: list[float]) -> float | None:
+    return round(float(np.mean(values)), 4) if values else None
+
+
+def _median(parts: list[np.ndarray]) -> tuple[float | None, int]:
+    v = np.concatenate(parts) if parts else np.zeros(0)
+    return (round(float(np.median(v)), 3) if len(v) else None), int(len(v))
 
 
 @dataclass
-class CameraScores:
-    psnr_db: list[float] = field(default_factory=list)
-    ssim: list[float] = field(default_factory=list)
+class RegionScores:
+    """Quality of one image producer against the world's truth: per camera and region, lists of
+    per-image PSNR and SSIM; lane-paint offsets of its images (and of the truth, the measure's floor)."""
+
+    paint_points: tuple[F64, F64] | None = None  # (points, tangents) of the map's solid paint, city frame
+    values: dict[str, dict[str, dict[str, list[float]]]] = field(default_factory=dict)
+    paint: list[np.ndarray] = field(default_factory=list)
+    paint_truth: list[np.ndarray] = field(default_factory=list)
+
+    @staticmethod
+    def for_map(vector_map: VectorMap | None) -> RegionScores:
+        from nuav2.bench.paint_alignment import painted_boundary_points
+
+        pts = painted_boundary_points(vector_map) if vector_map is not None else None
+        return RegionScores(pts if pts is not None and len(pts[0]) else None)
+
+    def _paint(self, img: np.ndarray, camera: CameraSpec, city_T_cam: F64) -> np.ndarray:
+        from nuav2.bench.paint_alignment import paint_offsets_px
+
+        return paint_offsets_px(img, camera, city_T_cam, *self.paint_points)
+
+    def add(self, camera: CameraSpec, city_T_cam: F64, img: np.ndarray, truth: np.ndarray, labels: np.ndarray,
+            *, with_paint_floor: bool = False) -> dict:
+        """Score one uint8 image against the truth (and its labels); returns the per-region metrics."""
+        got = region_metrics(img, truth, world_region_masks(labels), data_range=255.0)
+        cam = self.values.setdefault(camera.channel, {})
+        for region, m in got.items():
+            if m is not None:
+                r = cam.setdefault(region, {"psnr_db": [], "ssim": []})
+                r["psnr_db"].append(m["psnr_db"])
+                r["ssim"].append(m["ssim"])
+        if self.paint_points is not None:
+            self.paint.append(self._paint(img, camera, city_T_cam))
+            if with_paint_floor:
+                self.paint_truth.append(self._paint(truth, camera, city_T_cam))
+        return got
+
+    @property
+    def channels(self) -> list[str]:
+        return list(self.values)
 
     def summary(self) -> dict:
-        return {"n": len(self.psnr_db), "psnr_db": float(np.mean(self.psnr_db)),
-                "ssim": float(np.mean(self.ssim))}
+        """Means per camera and region, then over cameras (each camera weighs the same); paint medians."""
+        per_camera = {ch: {region: {"psnr_db": _mean(v["psnr_db"]), "ssim": _mean(v["ssim"]),
+                                    "images": len(v["psnr_db"])} for region, v in regions.items()}
+                      for ch, regions in self.values.items()}
+        out: dict = {"images": sum(c["whole"]["images"] for c in per_camera.values() if "whole" in c)}
+        for metric in ("psnr_db", "ssim"):
+            out[metric] = {region: _mean([c[region][metric] for c in per_camera.values() if region in c])
+                           for region in REGIONS}
+        out["paint_median_px"], out["paint_points"] = _median(self.paint)
+        if self.paint_truth:
+            out["paint_median_px_truth"], out["paint_points_truth"] = _median(self.paint_truth)
+        out["per_camera"] = per_camera
+        return out
 
 
 @dataclass(frozen=True)
@@ -68,17 +148,15 @@ def key_camera_images(dataroot: Path, version: str, log_offsets: dict[str, np.nd
     return out
 
 
-def score_against_world(images: list[WrittenImage], world, every: int = 1) -> dict[str, CameraScores]:
-    """Per-channel PSNR/SSIM of written images vs the world's render at the same pose and time."""
-    from nuav2.synth import render_view
-
-    scores: dict[str, CameraScores] = {}
+def score_against_world(images: list[WrittenImage], world, every: int = 1,
+                        vector_map: VectorMap | None = None) -> RegionScores:
+    """Per-channel, per-region PSNR/SSIM of written images vs the world's render at the same pose and
+    time; lane-paint offsets (and the truth's floor) when ``vector_map`` is given."""
+    scores = RegionScores.for_map(vector_map)
     for im in images[::every]:
-        gt = render_view(world, im.camera, im.city_T_cam, im.timestamp_ns).astype(np.float32) / 255.0
-        got = load_image_rgb(str(im.path)).astype(np.float32) / 255.0
-        s = scores.setdefault(im.channel, CameraScores())
-        s.psnr_db.append(float(psnr(got, gt)))
-        s.ssim.append(float(ssim(got, gt)))
+        truth, labels = truth_view(world, im.camera, im.city_T_cam, im.timestamp_ns)
+        img = load_image_rgb(str(im.path))
+        scores.add(im.camera, im.city_T_cam, img, truth, labels, with_paint_floor=True)
     return scores
 
 

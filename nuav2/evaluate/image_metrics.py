@@ -1,4 +1,5 @@
-"""Image reconstruction metrics: PSNR and SSIM (Wang et al. 2004), for numpy arrays or torch tensors.
+"""Image reconstruction metrics: PSNR and SSIM (Wang et al. 2004), for numpy arrays or torch tensors,
+over whole images or per region (ground, objects, sky: :func:`region_metrics`).
 
 SSIM uses the standard settings: an 11 x 11 Gaussian window with sigma 1.5 (normalised),
 K1 = 0.01, K2 = 0.03, population (not sample) covariances, and only the "valid" window
@@ -104,13 +105,12 @@ def ssim_torch(
     raise ValueError(f"ssim_torch: reduction must be 'mean' or 'none', got {reduction!r}")
 
 
-def ssim(a, b, data_range: float = 1.0, channel_axis: int | None = -1) -> float:
-    """SSIM of two images given as numpy arrays or tensors: (H, W), or with a channel axis.
+def ssim_map(a, b, data_range: float = 1.0, channel_axis: int | None = -1) -> np.ndarray:
+    """Per-pixel SSIM, averaged over channels, at the valid window centres: float64 (H - 10, W - 10).
 
-    ``channel_axis`` names the channel axis of a 3-D image (default last: (H, W, C));
-    use ``channel_axis=0`` for (C, H, W). Computed in float64 with OpenCV's separable
-    filter (torch's float64 grouped conv2d is ~100x slower on CPU); same maths as
-    :func:`ssim_torch`.
+    Images as for :func:`ssim`; pixel (i, j) of the map is the window centred on image pixel
+    (i + 5, j + 5). Computed with OpenCV's separable filter (torch's float64 grouped conv2d is
+    ~100x slower on CPU); same maths as :func:`ssim_torch`.
     """
     import cv2
 
@@ -137,12 +137,46 @@ def ssim(a, b, data_range: float = 1.0, channel_axis: int | None = -1) -> float:
             r:-r, r:-r]
 
     c1, c2 = (K1 * data_range) ** 2, (K2 * data_range) ** 2
-    means = []
+    total = np.zeros((na.shape[1] - 2 * r, na.shape[2] - 2 * r))
     for x, y in zip(na, nb):
         mu_a, mu_b = blur(x), blur(y)
         var_a = blur(x * x) - mu_a**2
         var_b = blur(y * y) - mu_b**2
         cov = blur(x * y) - mu_a * mu_b
-        m = ((2 * mu_a * mu_b + c1) * (2 * cov + c2)) / ((mu_a**2 + mu_b**2 + c1) * (var_a + var_b + c2))
-        means.append(m.mean())
-    return float(np.mean(means))
+        total += ((2 * mu_a * mu_b + c1) * (2 * cov + c2)) / ((mu_a**2 + mu_b**2 + c1) * (var_a + var_b + c2))
+    return total / len(na)
+
+
+def ssim(a, b, data_range: float = 1.0, channel_axis: int | None = -1) -> float:
+    """SSIM of two images given as numpy arrays or tensors: (H, W), or with a channel axis.
+
+    ``channel_axis`` names the channel axis of a 3-D image (default last: (H, W, C));
+    use ``channel_axis=0`` for (C, H, W).
+    """
+    return float(ssim_map(a, b, data_range, channel_axis).mean())
+
+
+def region_metrics(a, b, masks: dict[str, np.ndarray], data_range: float = 1.0,
+                   min_pixels: int = 64) -> dict[str, dict | None]:
+    """PSNR and SSIM of (H, W, C) images over each region of ``masks`` ({name: bool (H, W)}).
+
+    A region's SSIM is the mean of the SSIM map over the region's pixels that are valid window
+    centres (windows may reach across the region's border: the structure around a pixel counts).
+    A region with fewer than ``min_pixels`` pixels (or valid centres) gets None: too few to say.
+    """
+    smap = ssim_map(a, b, data_range)
+    r = WINDOW_SIZE // 2
+    out: dict[str, dict | None] = {}
+    for name, mask in masks.items():
+        mask = np.asarray(mask, bool)
+        if mask.shape != tuple(a.shape[:2]):
+            raise ValueError(f"region {name!r}: mask shape {mask.shape} does not match the image "
+                             f"{tuple(a.shape[:2])}")
+        inner = mask[r:-r, r:-r]
+        n = int(mask.sum())
+        if n < min_pixels or int(inner.sum()) < min_pixels:
+            out[name] = None
+            continue
+        out[name] = {"psnr_db": psnr(a, b, data_range=data_range, mask=mask),
+                     "ssim": float(smap[inner].mean()), "pixels": n}
+    return out

@@ -11,16 +11,20 @@ torch dataset, so both see the same poses.
 
 from __future__ import annotations
 
+import collections
+import contextlib
+import itertools
+import json
 import logging
 import math
-import pickle
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 import numpy as np
 
-from nuav2.atomic import atomic_write_bytes
+from nuav2.atomic import atomic_file
 from nuav2.geometry import F64, T_from_quat_trans, T_inverse, quat_to_rot, yaw_of
+from nuav2.maptr.info_pickle import InfoPickleStream, record_bytes
 from nuav2.maptr.subsets import available_splits, scene_sample_tokens, split_scene_names
 from nuav2.maptr.vectorize import CLASSES, DEFAULT_PATCH, MapGT
 
@@ -179,30 +183,35 @@ def annotation_of(vectors: list[tuple[str, F64]]) -> dict[str, list[F64]]:
     return ann
 
 
-def split_infos(
-    nusc,
-    split: str,
-    gt: MapGT | None = None,
-    max_sweeps: int = MAX_SWEEPS,
-    cameras: Sequence[str] | None = None,
-    path_root: str = "",
-    progress: bool = True,
-) -> list[dict]:
-    """Info records of every keyframe of ``split``, scene by scene in time order."""
-    from nuav2.progress import progress_bar
+MAX_CACHED_MAPS = 8  # map vectorizers kept per process: nuScenes has 4 locations, nuAV2 one per log
 
-    gt = gt or MapGT(nusc.dataroot)
-    jobs = [
-        (tok, i)
-        for name in split_scene_names(nusc, split)
-        for i, tok in enumerate(scene_sample_tokens(nusc, name))
-    ]
-    infos = []
-    for tok, frame_idx in progress_bar(jobs, desc=f"infos {split}", unit="sample", disable=not progress):
-        info = sample_info(nusc, tok, frame_idx, max_sweeps, cameras, path_root)
-        info["annotation"] = annotation_of(gt.sample_vectors(nusc, tok))
-        infos.append(info)
-    return infos
+
+class SceneInfoMaker:
+    """The devkit tables and the map GT of one dataroot, turning one scene at a time into pickled
+    info records (:func:`nuav2.maptr.info_pickle.record_bytes`). One lives in the main process, or
+    in each local worker process or Ray actor; each scene's maps are loaded lazily and at most
+    ``MAX_CACHED_MAPS`` stay cached, so memory does not grow with the number of logs."""
+
+    def __init__(self, dataroot: str | Path, version: str, patch: tuple[float, float] = DEFAULT_PATCH,
+                 max_sweeps: int = MAX_SWEEPS, cameras: Sequence[str] | None = None, path_root: str = ""):
+        from nuscenes.nuscenes import NuScenes
+
+        self.nusc = NuScenes(version=version, dataroot=str(dataroot), verbose=False)
+        self.gt = MapGT(dataroot, patch)
+        self.max_sweeps, self.cameras, self.path_root = max_sweeps, cameras, path_root
+
+    def scene(self, scene_name: str) -> tuple[bytes, int, list[tuple[str, int]]]:
+        """(record bytes of the keyframes in time order, their count, (scene token, timestamp) of each)."""
+        parts, times = [], []
+        for frame_idx, tok in enumerate(scene_sample_tokens(self.nusc, scene_name)):
+            info = sample_info(self.nusc, tok, frame_idx, self.max_sweeps, self.cameras, self.path_root)
+            info["annotation"] = annotation_of(self.gt.sample_vectors(self.nusc, tok))
+            parts.append(record_bytes(info))
+            times.append((info["scene_token"], info["timestamp"]))
+        cached = self.gt._by_location  # MapGT's lazy per-location cache, bounded here
+        while len(cached) > MAX_CACHED_MAPS:
+            cached.pop(next(iter(cached)))
+        return b"".join(parts), len(parts), times
 
 
 def scenes_stay_contiguous_by_time(infos: list[dict]) -> bool:
@@ -219,6 +228,19 @@ def scenes_stay_contiguous_by_time(infos: list[dict]) -> bool:
     return True
 
 
+class _SceneIndex:
+    """What split selection reads of a database (dataroot, version, scene records), without loading
+    the devkit's tables into the main process when workers do the work."""
+
+    def __init__(self, dataroot: str | Path, version: str):
+        self.dataroot, self.version = str(dataroot), version
+        path = Path(dataroot) / version / "scene.json"
+        try:
+            self.scene = json.loads(path.read_text())
+        except (OSError, ValueError) as e:
+            raise FileNotFoundError(f"{path}: cannot read the scene table ({type(e).__name__}: {e})") from e
+
+
 def export_infos(
     dataroot: str | Path,
     version: str,
@@ -229,29 +251,101 @@ def export_infos(
     patch: tuple[float, float] = DEFAULT_PATCH,
     path_root: str = "",
     cameras: Sequence[str] | None = None,
+    workers: int = 1,
+    executor: str = "local",
+    ray_address: str | None = None,
+    progress: bool = True,
 ) -> dict[str, Path]:
-    """Write ``{prefix}_map_infos_temporal_{split}.pkl`` per split (default: all in splits.json)."""
-    from nuscenes.nuscenes import NuScenes
+    """Write ``{prefix}_map_infos_temporal_{split}.pkl`` per split (default: all in splits.json).
 
-    nusc = NuScenes(version=version, dataroot=str(dataroot), verbose=False)
-    splits = list(splits) if splits else available_splits(nusc)
-    gt = MapGT(dataroot, patch)
+    Scenes are turned into records by ``workers`` local processes (or Ray actors with
+    ``executor="ray"``) and streamed into each file in split order; the bytes are the same
+    whatever the number of workers.
+    """
+    from nuav2.executors.progress import BatchProgress
+
+    index = _SceneIndex(dataroot, version)
+    splits = list(splits) if splits else available_splits(index)
+    jobs = {split: split_scene_names(index, split) for split in splits}
+    maker_args = (str(dataroot), version, tuple(patch), max_sweeps,
+                  tuple(cameras) if cameras else None, path_root)
     written: dict[str, Path] = {}
-    for split in splits:
-        infos = split_infos(nusc, split, gt, max_sweeps, cameras, path_root)
-        if not scenes_stay_contiguous_by_time(infos):
-            log.warning(
-                "split %s: sorting by timestamp (as MMDet3D does) interleaves scenes; "
-                "MapTR's temporal queue will see scene changes mid-sequence",
-                split,
-            )
-        path = Path(out_dir) / info_filename(prefix, split)
-        atomic_write_bytes(
-            path,
-            pickle.dumps(
-                {"infos": infos, "metadata": {"version": version}}, protocol=pickle.HIGHEST_PROTOCOL
-            ),
-        )
-        log.info("wrote %s (%d samples)", path, len(infos))
-        written[split] = path
+    with scene_runner(maker_args, workers, executor, ray_address) as run_scenes:
+        for split, names in jobs.items():
+            path = Path(out_dir) / info_filename(prefix, split)
+            times: list[dict] = []
+            bar = BatchProgress(len(names), enabled=progress, desc=f"infos {split}", unit="scene")
+            try:
+                with atomic_file(path) as f:
+                    stream = InfoPickleStream(f)
+                    for records, count, scene_times in run_scenes(names, bar):
+                        stream.add(records, count)
+                        times += [{"scene_token": s, "timestamp": t} for s, t in scene_times]
+                    stream.close({"version": version})
+            finally:
+                bar.close()
+            if not scenes_stay_contiguous_by_time(times):
+                log.warning(
+                    "split %s: sorting by timestamp (as MMDet3D does) interleaves scenes; "
+                    "MapTR's temporal queue will see scene changes mid-sequence",
+                    split,
+                )
+            log.info("wrote %s (%d samples)", path, stream.count)
+            written[split] = path
     return written
+
+
+@contextlib.contextmanager
+def scene_runner(maker_args: tuple, workers: int, executor: str, ray_address: str | None) -> Iterator:
+    """A function ``(scene names, progress) -> iterator of SceneInfoMaker.scene results in that order``,
+    in this process, in ``workers`` local processes, or in Ray actors."""
+    if executor == "ray":
+        from nuav2.executors.ray_infos import ray_scene_runner
+
+        with ray_scene_runner(maker_args, workers, ray_address) as run:
+            yield run
+    elif workers <= 1:
+        maker = SceneInfoMaker(*maker_args)
+
+        def run_here(names, bar):
+            for name in names:
+                bar.update(running=1)
+                out = maker.scene(name)
+                bar.update(finished=1, running=0)
+                yield out
+
+        yield run_here
+    else:
+        from nuav2.executors.local import worker_pool
+
+        with worker_pool(workers, _init_worker_maker, (maker_args,)) as pool:
+            yield lambda names, bar: _ordered(pool, names, workers, bar)
+
+
+_WORKER_MAKER: SceneInfoMaker | None = None
+
+
+def _init_worker_maker(maker_args: tuple) -> None:
+    global _WORKER_MAKER
+    _WORKER_MAKER = SceneInfoMaker(*maker_args)
+
+
+def _worker_scene(name: str) -> tuple[bytes, int, list]:
+    assert _WORKER_MAKER is not None
+    return _WORKER_MAKER.scene(name)
+
+
+def _ordered(pool, names: list[str], workers: int, bar) -> Iterator:
+    """Results in ``names`` order with at most 2 x ``workers`` scenes in flight (bounded memory)."""
+    window: collections.deque = collections.deque()
+    todo = iter(names)
+    for name in itertools.islice(todo, 2 * workers):
+        window.append(pool.submit(_worker_scene, name))
+    while window:
+        bar.update(running=min(len(window), workers))
+        out = window.popleft().result()
+        nxt = next(todo, None)
+        if nxt is not None:
+            window.append(pool.submit(_worker_scene, nxt))
+        bar.update(finished=1)
+        yield out

@@ -7,18 +7,20 @@ densification strategy can ``retain_grad()`` them, as with gsplat.
 from __future__ import annotations
 
 import contextlib
+from dataclasses import dataclass
 
 import numba
 import numpy as np
 import torch
 
-from nuav2.splat import _binning, _composite, _project
+from nuav2.splat import _backward, _binning, _composite, _forward, _project
+from nuav2.splat._stages import count, stage
 
 
-def _np(t: torch.Tensor | None, like: np.ndarray | None = None, dtype=None) -> np.ndarray:
+def _np(t: torch.Tensor | None, shape: tuple[int, ...] = (), dtype=None) -> np.ndarray:
+    """A C-contiguous numpy view (or converted copy) of ``t``; zeros of ``shape`` for a missing gradient."""
     if t is None:
-        assert like is not None
-        return np.zeros_like(like, dtype=dtype or like.dtype)
+        return np.zeros(shape, dtype)
     a = t.detach().contiguous().numpy()
     return a if dtype is None else a.astype(dtype, copy=False)
 
@@ -49,43 +51,36 @@ def n_chunks() -> int:
 
 
 class ProjectFn(torch.autograd.Function):
-    """(means, quats, log_scales) -> means2d (C,N,2), conics (C,N,3), depths (C,N), radii (C,N,2)."""
+    """(means, quats, log_scales) -> means2d (C,N,2), conics (C,N,3), depths (C,N), radii (C,N,2) int32."""
 
     @staticmethod
     def forward(ctx, means, quats, log_scales, opacities, cam_T_world, Ks, width, height, near, far,
                 radius_clip):
-        m = _np(means, dtype=np.float64)
-        q = _np(quats, dtype=np.float64)
-        s = _np(log_scales, dtype=np.float64)
-        o = _np(opacities, dtype=np.float64)
-        means2d, conics, depths, radii = _project.empty_projection(len(cam_T_world), len(m))
-        with threads_for(len(m) * len(cam_T_world)):
+        m, q, s, o = (_np(t) for t in (means, quats, log_scales, opacities))
+        means2d, conics, depths, radii = _project.empty_projection(len(cam_T_world), len(m), m.dtype)
+        with threads_for(len(m) * len(cam_T_world)), stage("projection_fwd"):
             _project.project_forward(m, q, s, o, cam_T_world, Ks, float(width), float(height), float(near),
                                      float(far), float(radius_clip), means2d, conics, depths, radii)
         ctx.arrays = (m, q, s, cam_T_world, Ks, float(width), float(height), radii)
-        ctx.dtype = means.dtype
         radii_t = torch.from_numpy(radii)
         ctx.mark_non_differentiable(radii_t)
-        dt = means.dtype
-        return (torch.from_numpy(means2d).to(dt), torch.from_numpy(conics).to(dt),
-                torch.from_numpy(depths).to(dt), radii_t)
+        return torch.from_numpy(means2d), torch.from_numpy(conics), torch.from_numpy(depths), radii_t
 
     @staticmethod
     def backward(ctx, g_means2d, g_conics, g_depths, _g_radii):
         m, q, s, cam_T_world, Ks, width, height, radii = ctx.arrays
         n_cams, n = radii.shape[:2]
-        gm2 = _np(g_means2d, np.zeros((n_cams, n, 2)), np.float64)
-        gc = _np(g_conics, np.zeros((n_cams, n, 3)), np.float64)
-        gd = _np(g_depths, np.zeros((n_cams, n)), np.float64)
-        g_means = np.zeros_like(m)
-        g_quats = np.zeros_like(q)
-        g_scales = np.zeros_like(s)
-        with threads_for(len(m) * n_cams):
+        gm2 = _np(g_means2d, (n_cams, n, 2), m.dtype)
+        gc = _np(g_conics, (n_cams, n, 3), m.dtype)
+        gd = _np(g_depths, (n_cams, n), m.dtype)
+        g_means = np.empty_like(m)
+        g_quats = np.empty_like(q)
+        g_scales = np.empty_like(s)
+        with threads_for(len(m) * n_cams), stage("projection_bwd"):
             _project.project_backward(m, q, s, cam_T_world, Ks, width, height, radii, gm2, gc, gd,
                                       g_means, g_quats, g_scales)
-        dt = ctx.dtype
-        return (torch.from_numpy(g_means).to(dt), torch.from_numpy(g_quats).to(dt),
-                torch.from_numpy(g_scales).to(dt), None, None, None, None, None, None, None, None)
+        return (torch.from_numpy(g_means), torch.from_numpy(g_quats), torch.from_numpy(g_scales),
+                None, None, None, None, None, None, None, None)
 
 
 class CompositeFn(torch.autograd.Function):
@@ -94,44 +89,111 @@ class CompositeFn(torch.autograd.Function):
     @staticmethod
     def forward(ctx, means2d, conics, opacities, colors, depths, radii, width, height, absgrad_out):
         dt_np = np.float32 if means2d.dtype == torch.float32 else np.float64
-        arrs = tuple(_np(t, dtype=dt_np) for t in (means2d, conics, opacities, colors, depths))
-        m2, con, op, col, dep = arrs
-        order = _binning.depth_order(dep, radii)
-        work = len(order) + int(width) * int(height)
-        with threads_for(work):
-            # visible Gaussians nearest first: binning reads rows sequentially and each tile's
-            # list walks memory forwards
-            packed = _composite.pack_gaussians(m2, con, op, col, dep, order)
-            chunks = n_chunks()
-            offsets, ids = _binning.bin_packed(packed, width, height, chunks)
-            tile_order = _composite.tile_work_order(offsets)
-            px = _composite.pixel_centres(int(width), dt_np)
-            py = _composite.pixel_centres(int(height), dt_np)
-            consts = _composite.make_consts(dt_np)
-            color = np.empty((height, width, 3), dt_np)
-            depth = np.empty((height, width), dt_np)
-            T = np.empty((height, width), dt_np)
-            last = np.empty((height, width), np.int32)
-            forward_kernel = _composite.kernels_for(dt_np)[0]
-            forward_kernel(packed, offsets, ids, tile_order, px, py, chunks, consts, color, depth, T, last)
-        ctx.arrays = (packed, order, len(m2), offsets, ids, tile_order, px, py, chunks, consts, T, last)
-        ctx.work = work
+        m2, con, op, col, dep = (_np(t, dtype=dt_np) for t in (means2d, conics, opacities, colors, depths))
+        frame = composite_forward(m2, con, op, col, dep, radii, int(width), int(height))
+        ctx.frame = frame
+        ctx.n = len(m2)
         ctx.absgrad_out = absgrad_out
-        return torch.from_numpy(color), torch.from_numpy(depth), torch.from_numpy(1.0 - T)
+        return (torch.from_numpy(frame.color), torch.from_numpy(frame.depth),
+                torch.from_numpy(1.0 - frame.T))
 
     @staticmethod
     def backward(ctx, g_color, g_depth, g_alpha):
-        packed, order, n, offsets, ids, tile_order, px, py, chunks, consts, T, last = ctx.arrays
-        gcol = _np(g_color, np.zeros(T.shape + (3,), T.dtype), T.dtype)
-        gdep = _np(g_depth, T, T.dtype)
-        galp = _np(g_alpha, T, T.dtype)
-        grads = np.zeros((chunks, len(packed), _composite.N_GRAD), T.dtype)
-        with threads_for(ctx.work):
-            _composite.kernels_for(T.dtype)[1](packed, offsets, ids, tile_order, px, py, chunks, consts, T,
-                                               last, gcol, gdep, galp, grads)
-            g = torch.from_numpy(_composite.unpack_grads(grads, order, n))     # (12, N) channel-major
-        C = _composite
-        if ctx.absgrad_out is not None:
-            ctx.absgrad_out += g[C.G_ABS_MX:C.G_ABS_MY + 1].T
-        return (g[C.G_MX:C.G_MY + 1].T, g[C.G_A:C.G_C + 1].T, g[C.G_O], g[C.G_R:C.G_BL + 1].T, g[C.G_Z],
-                None, None, None, None)
+        frame = ctx.frame
+        T = frame.T
+        gcol = _np(g_color, T.shape + (3,), T.dtype)
+        gdep = _np(g_depth, T.shape, T.dtype)
+        galp = _np(g_alpha, T.shape, T.dtype)
+        absgrad = np.zeros((ctx.n, 2), T.dtype) if ctx.absgrad_out is None else ctx.absgrad_out.numpy()
+        grads = composite_backward(frame, gcol, gdep, galp, ctx.n, absgrad)
+        return tuple(torch.from_numpy(g) for g in grads) + (None, None, None, None)
+
+
+@dataclass
+class Frame:
+    """What one camera's forward leaves for its backward."""
+
+    packed: np.ndarray          # (rows, 16) visible Gaussians nearest first (rows of binned slabs filled)
+    order: np.ndarray           # row -> Gaussian id
+    slab_offsets: np.ndarray    # (n_slabs, n_tiles + 1) into ids
+    ids: np.ndarray             # rows per tile per slab
+    color: np.ndarray           # (H, W, 3) colour sum
+    depth: np.ndarray           # (H, W) depth sum
+    T: np.ndarray               # (H, W) final transmittance
+    last: np.ndarray            # (H, W) last contributing row, -1 for none
+    work: int                   # pixels + visible Gaussians (thread heuristic)
+
+
+def composite_forward(m2: np.ndarray, con: np.ndarray, op: np.ndarray, col: np.ndarray, dep: np.ndarray,
+                      radii: np.ndarray, width: int, height: int) -> Frame:
+    """Depth sort, then per depth slab (nearest first): pack its rows, bin them into the tiles that
+    still have a live pixel, composite; stop once every pixel has stopped."""
+    dt = m2.dtype
+    with stage("sort"):
+        order = _binning.depth_order(dep, radii)
+    work = len(order) + width * height
+    with threads_for(work):
+        groups = n_chunks()
+        with stage("pack"):
+            packed = np.empty((len(order), _composite.PACKED_WIDTH), dt)
+            color = np.zeros((height, width, 3), dt)
+            depth = np.zeros((height, width), dt)
+            T = np.ones((height, width), dt)
+            last = np.full((height, width), -1, np.int32)
+            done = np.zeros((height, width), np.uint8)
+            px = _composite.pixel_centres(width, dt)
+            py = _composite.pixel_centres(height, dt)
+            consts = _composite.make_consts(dt)
+        n_tiles = _binning.n_tiles(width, height)
+        tile_alive = np.ones(n_tiles, np.uint8)
+        bounds = _binning.slab_bounds(len(packed))
+        offsets_per_slab, ids_per_slab, base = [], [], 0
+        kernel = _forward.slab_kernel(dt)
+        for lo, hi in zip(bounds[:-1], bounds[1:]):
+            with stage("pack"):
+                _composite.pack_rows(m2, con, op, col, dep, order, packed, lo, hi)
+            with stage("binning"):
+                offsets, ids = _binning.bin_slab(packed, lo, hi, width, height, tile_alive, groups)
+                counts = np.diff(offsets)
+                tiles = _composite.heaviest_first(counts)[:np.count_nonzero(counts)]
+            with stage("composite_fwd"):
+                kernel(packed, offsets, ids, tiles, px, py, groups, consts, color, depth, T, last, done,
+                       tile_alive)
+            offsets_per_slab.append(offsets + base)
+            ids_per_slab.append(ids)
+            base += len(ids)
+            if not tile_alive.any():
+                break
+    slab_offsets = (np.stack(offsets_per_slab) if offsets_per_slab
+                    else np.zeros((1, n_tiles + 1), np.int64))
+    ids = np.concatenate(ids_per_slab) if ids_per_slab else np.zeros(0, np.int32)
+    count("tile_pairs", len(ids))
+    count("depth_slabs", len(offsets_per_slab))
+    return Frame(packed, order, slab_offsets, ids, color, depth, T, last, work)
+
+
+def composite_backward(frame: Frame, gcol: np.ndarray, gdep: np.ndarray, galp: np.ndarray, n: int,
+                       absgrad: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Gradients w.r.t. means2d, conics, opacities, colours and depths of the n Gaussians, in the
+    caller's order; |dL/dmeans2d| summed over pixels is added into absgrad (n, 2).
+
+    Only rows up to the furthest last contributor can receive gradient, so the per-group
+    buffers and their reduction stop there (behind an opaque foreground that is a short prefix).
+    """
+    dt = frame.T.dtype
+    height, width = frame.T.shape
+    rows = int(frame.last.max(initial=-1)) + 1
+    with threads_for(frame.work):
+        groups = n_chunks()
+        with stage("composite_bwd"):
+            per_tile = (frame.slab_offsets[:, 1:] - frame.slab_offsets[:, :-1]).sum(0)
+            tiles = _composite.heaviest_first(per_tile)[:np.count_nonzero(per_tile)]
+            grads = np.zeros((groups, rows, _composite.N_GRAD), dt)
+            contributions = np.zeros(groups, np.int64)
+            _backward.backward_kernel(dt)(
+                frame.packed, frame.slab_offsets, frame.ids, tiles, _composite.pixel_centres(width, dt),
+                _composite.pixel_centres(height, dt), groups, _composite.make_consts(dt), frame.T, frame.last,
+                gcol, gdep, galp, grads, contributions)
+        count("contributions", int(contributions.sum()))
+        with stage("unpack"):
+            return _composite.unpack_grads(grads, frame.order[:rows], n, absgrad)

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from nuav2.splat.sh import sh_degree_of
+from nuav2.splat.sh import sh_degree_of, sh_to_rgb
 
 _RIGID_TOL = 1e-4
 
@@ -99,12 +99,47 @@ def check_image(width: int, height: int, near: float, far: float) -> None:
 
 
 def background_rows(background, n_cams: int, dtype: torch.dtype, device) -> torch.Tensor:
-    """Background as (C,3) in the image dtype (zeros when None)."""
+    """Background as (C,3) in the image dtype (zeros when None); a non-finite one is an error
+    (it would reach every pixel that is not fully opaque)."""
     if background is None:
         return torch.zeros(n_cams, 3, dtype=dtype, device=device)
     bg = torch.as_tensor(background, dtype=dtype, device=device)
+    if not torch.isfinite(bg.detach()).all():
+        raise ValueError(f"background must be finite, got {bg.detach().cpu().tolist()}")
     if bg.shape == (3,):
         return bg.expand(n_cams, 3)
     if bg.shape == (n_cams, 3):
         return bg
     raise ValueError(f"background must be (3,) or ({n_cams},3), got {tuple(bg.shape)}")
+
+
+def finite_colors(colors: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
+    """(colours with the rows of non-finite Gaussians zeroed, (N,) bool mask of those Gaussians,
+    None when there is none: a finite sum proves it with one pass).
+
+    A Gaussian whose colour (or any SH coefficient) is NaN or inf is culled by every backend,
+    like one with a non-finite mean, scale, rotation or opacity: it would otherwise turn every
+    pixel behind it, and the gradients of its neighbours, into NaN. Zeroing the rows (with
+    ``torch.where``) keeps NaN out of the backward graph, so the culled Gaussian's colour
+    gradient is exactly zero.
+    """
+    if bool(torch.isfinite(colors.detach().sum())):
+        return colors, None
+    bad = ~torch.isfinite(colors.detach()).flatten(1).all(-1)
+    if not bad.any():
+        return colors, None
+    mask = bad.reshape((-1,) + (1,) * (colors.ndim - 1))
+    return torch.where(mask, torch.zeros_like(colors), colors), bad
+
+
+def camera_colors(colors: torch.Tensor, bad: torch.Tensor | None, sh_degree: int | None, means: torch.Tensor,
+                  centre_world: np.ndarray) -> tuple[torch.Tensor, torch.Tensor | None]:
+    """RGB per Gaussian for one camera (SH evaluated towards it) and the Gaussians to cull there
+    (None for none): ``bad`` plus any whose SH colour overflowed (zeroed too)."""
+    if sh_degree is None:
+        return colors, bad
+    rgb = sh_to_rgb(colors, means, centre_world, sh_degree)
+    rgb, overflow = finite_colors(rgb)
+    if overflow is None:
+        return rgb, bad
+    return rgb, overflow if bad is None else bad | overflow

@@ -1,8 +1,9 @@
 """Numba EWA projection of 3D Gaussians into pinhole cameras, forward and exact backward.
 
-Always float64 inside (city-scale coordinates and huge or tiny scales stay finite); the
-caller casts the outputs to the image dtype. Scalar code only (no small temporary arrays),
-one prange over Gaussians with the cameras looped inside, so the backward accumulates
+Always float64 inside (city-scale coordinates and huge or tiny scales stay finite) whatever
+the array dtype: every input is widened when read and outputs are rounded once when stored,
+so float32 callers get the float64 result without conversion copies. Scalar code only (no
+small temporary arrays), one prange over Gaussians with the cameras looped inside, so the backward accumulates
 per-Gaussian gradients without races. The 2D covariance is built from its factor
 A = J W R diag(s) (cov2d = A A^T + 0.3 I), so the backward never forms 3D covariances.
 """
@@ -27,22 +28,24 @@ from nuav2.splat.constants import (
 # Gaussians whose projected centre lies further than this from the image (pixels) are culled:
 # float32 pixel offsets beyond it would square past the float32 range in the compositor.
 MEAN2D_LIMIT = 1e6
+RADIUS_MAX = 2.0**31 - 1          # int32 pixel radii are clamped here (huge off-screen splats only)
 
 
 @njit(cache=True)
 def _rotation_scales(quats, log_scales, g):
     """Unit quaternion q/max(|q|,eps) (a zero one gives the identity), |q|, its rotation rows,
     and the clamped scales."""
-    qw, qx, qy, qz = quats[g, 0], quats[g, 1], quats[g, 2], quats[g, 3]
+    f64 = np.float64
+    qw, qx, qy, qz = f64(quats[g, 0]), f64(quats[g, 1]), f64(quats[g, 2]), f64(quats[g, 3])
     n = math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
     d = max(n, QUAT_EPS)
     w, x, y, z = qw / d, qx / d, qy / d, qz / d
     r = (1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - w * z), 2.0 * (x * z + w * y),
          2.0 * (x * y + w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - w * x),
          2.0 * (x * z - w * y), 2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y))
-    s = (math.exp(min(max(log_scales[g, 0], LOG_SCALE_MIN), LOG_SCALE_MAX)),
-         math.exp(min(max(log_scales[g, 1], LOG_SCALE_MIN), LOG_SCALE_MAX)),
-         math.exp(min(max(log_scales[g, 2], LOG_SCALE_MIN), LOG_SCALE_MAX)))
+    s = (math.exp(min(max(f64(log_scales[g, 0]), LOG_SCALE_MIN), LOG_SCALE_MAX)),
+         math.exp(min(max(f64(log_scales[g, 1]), LOG_SCALE_MIN), LOG_SCALE_MAX)),
+         math.exp(min(max(f64(log_scales[g, 2]), LOG_SCALE_MIN), LOG_SCALE_MAX)))
     return (w, x, y, z), n, d, r, s
 
 
@@ -117,7 +120,7 @@ def _camera(cam_T_world, Ks, c):
 
 @njit(cache=True)
 def _to_camera(V, means, g):
-    mx, my, mz = means[g, 0], means[g, 1], means[g, 2]
+    mx, my, mz = np.float64(means[g, 0]), np.float64(means[g, 1]), np.float64(means[g, 2])
     return (V[0, 0] * mx + V[0, 1] * my + V[0, 2] * mz + V[0, 3],
             V[1, 0] * mx + V[1, 1] * my + V[1, 2] * mz + V[1, 3],
             V[2, 0] * mx + V[2, 1] * my + V[2, 2] * mz + V[2, 3])
@@ -137,10 +140,10 @@ def project_forward(means, quats, log_scales, opacities, cam_T_world, Ks, width,
     n_cams = cam_T_world.shape[0]
     for g in prange(means.shape[0]):
         _q, _n, _d, r, s = _rotation_scales(quats, log_scales, g)
-        o = opacities[g]
+        o = np.float64(opacities[g])
         for c in range(n_cams):
-            radii[c, g, 0] = 0.0
-            radii[c, g, 1] = 0.0
+            radii[c, g, 0] = 0
+            radii[c, g, 1] = 0
             V, W, fx, fy, cx, cy = _camera(cam_T_world, Ks, c)
             x, y, z = _to_camera(V, means, g)
             if not (z >= near and z <= far) or not (o >= ALPHA_MIN):
@@ -176,8 +179,17 @@ def project_forward(means, quats, log_scales, opacities, cam_T_world, Ks, width,
             conics[c, g, 1] = ib
             conics[c, g, 2] = ic
             depths[c, g] = z
-            radii[c, g, 0] = rx
-            radii[c, g, 1] = ry
+            radii[c, g, 0] = int(min(rx, RADIUS_MAX))
+            radii[c, g, 1] = int(min(ry, RADIUS_MAX))
+
+
+@njit(cache=True, inline="always")
+def _has_gradient(radii, g_means2d, g_conics, g_depths, c, g):
+    """Whether Gaussian g is visible in camera c and receives a nonzero upstream gradient there."""
+    if radii[c, g, 0] <= 0 and radii[c, g, 1] <= 0:
+        return False
+    return not (g_means2d[c, g, 0] == 0.0 and g_means2d[c, g, 1] == 0.0 and g_conics[c, g, 0] == 0.0
+                and g_conics[c, g, 1] == 0.0 and g_conics[c, g, 2] == 0.0 and g_depths[c, g] == 0.0)
 
 
 @njit(parallel=True, cache=True, nogil=True)
@@ -186,16 +198,24 @@ def project_backward(means, quats, log_scales, cam_T_world, Ks, width, height, r
     """Exact vector-Jacobian product of project_forward; sums over cameras per Gaussian."""
     n_cams = cam_T_world.shape[0]
     for g in prange(means.shape[0]):
+        seen = False
+        for c in range(n_cams):
+            seen = seen or _has_gradient(radii, g_means2d, g_conics, g_depths, c, g)
+        if not seen:              # culled everywhere, or occluded: the VJP is linear, so exactly zero
+            for k in range(3):
+                g_means[g, k] = 0.0
+                g_log_scales[g, k] = 0.0
+            for k in range(4):
+                g_quats[g, k] = 0.0
+            continue
         q, qn, qd, r, s = _rotation_scales(quats, log_scales, g)
         gM = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)     # dL/d(R diag(s)), row-major
         gm0 = 0.0
         gm1 = 0.0
         gm2 = 0.0
-        seen = False
         for c in range(n_cams):
-            if radii[c, g, 0] <= 0.0 and radii[c, g, 1] <= 0.0:
+            if not _has_gradient(radii, g_means2d, g_conics, g_depths, c, g):
                 continue
-            seen = True
             V, W, fx, fy, cx, cy = _camera(cam_T_world, Ks, c)
             x, y, z = _to_camera(V, means, g)
             rz = 1.0 / z
@@ -212,7 +232,8 @@ def project_backward(means, quats, log_scales, cam_T_world, Ks, width, height, r
             B = _cam_factor(W, r, s)
             A0, A1 = _screen_factor(B, j00, j02, j11, j12)
             a, b, cc, det, (m01, m02, m12) = _cov2d(A0, A1)
-            gA0, gA1 = _conic_backward(g_conics[c, g, 0], g_conics[c, g, 1], g_conics[c, g, 2],
+            gA0, gA1 = _conic_backward(np.float64(g_conics[c, g, 0]), np.float64(g_conics[c, g, 1]),
+                                       np.float64(g_conics[c, g, 2]),
                                        a, b, cc, det, m01, m02, m12, A0, A1)
             # A0 = j00 B0 + j02 B2, A1 = j11 B1 + j12 B2 (B rows)
             GJ00 = gA0[0] * B[0] + gA0[1] * B[1] + gA0[2] * B[2]
@@ -232,12 +253,12 @@ def project_backward(means, quats, log_scales, cam_T_world, Ks, width, height, r
                   gM[7] + W[2] * gB[1] + W[5] * gB[4] + W[8] * gB[7],
                   gM[8] + W[2] * gB[2] + W[5] * gB[5] + W[8] * gB[8])
             # camera-frame mean gradient: projection, depth, then J's dependence on (x, y, z)
-            gu = g_means2d[c, g, 0]
-            gv = g_means2d[c, g, 1]
+            gu = np.float64(g_means2d[c, g, 0])
+            gv = np.float64(g_means2d[c, g, 1])
             rz2 = rz * rz
             gx = gu * fx * rz
             gy = gv * fy * rz
-            gz = -(gu * fx * x + gv * fy * y) * rz2 + g_depths[c, g]
+            gz = -(gu * fx * x + gv * fy * y) * rz2 + np.float64(g_depths[c, g])
             gz += -GJ00 * fx * rz2 - GJ11 * fy * rz2
             if xz >= lo_x and xz <= hi_x:
                 gx += -GJ02 * fx * rz2
@@ -255,12 +276,6 @@ def project_backward(means, quats, log_scales, cam_T_world, Ks, width, height, r
         g_means[g, 0] = gm0
         g_means[g, 1] = gm1
         g_means[g, 2] = gm2
-        if not seen:
-            for k in range(4):
-                g_quats[g, k] = 0.0
-            for k in range(3):
-                g_log_scales[g, k] = 0.0
-            continue
         # M = R diag(s): dL/dR_kj = dL/dM_kj s_j, dL/ds_j = sum_k dL/dM_kj R_kj
         gR = (gM[0] * s[0], gM[1] * s[1], gM[2] * s[2], gM[3] * s[0], gM[4] * s[1], gM[5] * s[2],
               gM[6] * s[0], gM[7] * s[1], gM[8] * s[2])
@@ -268,7 +283,7 @@ def project_backward(means, quats, log_scales, cam_T_world, Ks, width, height, r
         ds1 = gM[1] * r[1] + gM[4] * r[4] + gM[7] * r[7]
         ds2 = gM[2] * r[2] + gM[5] * r[5] + gM[8] * r[8]
         for j, ds in enumerate((ds0, ds1, ds2)):
-            ls = log_scales[g, j]
+            ls = np.float64(log_scales[g, j])
             g_log_scales[g, j] = ds * s[j] if (ls >= LOG_SCALE_MIN and ls <= LOG_SCALE_MAX) else 0.0
         w, x, y, z = q
         gw = 2.0 * (-z * gR[1] + y * gR[2] + z * gR[3] - x * gR[5] - y * gR[6] + x * gR[7])
@@ -286,7 +301,8 @@ def project_backward(means, quats, log_scales, cam_T_world, Ks, width, height, r
         g_quats[g, 3] = (gz - dot * z) / qd
 
 
-def empty_projection(n_cams: int, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Zeroed float64 output buffers for project_forward: means2d, conics, depths, radii."""
-    return (np.zeros((n_cams, n, 2)), np.zeros((n_cams, n, 3)), np.zeros((n_cams, n)),
-            np.zeros((n_cams, n, 2)))
+def empty_projection(n_cams: int, n: int, dtype) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Output buffers for project_forward: means2d, conics, depths in the image dtype (zeros where
+    culled), int32 radii."""
+    return (np.zeros((n_cams, n, 2), dtype), np.zeros((n_cams, n, 3), dtype), np.zeros((n_cams, n), dtype),
+            np.zeros((n_cams, n, 2), np.int32))

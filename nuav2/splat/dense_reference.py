@@ -11,7 +11,14 @@ from __future__ import annotations
 
 import torch
 
-from nuav2.splat._inputs import background_rows, check_gaussians, check_image, prepare_cameras
+from nuav2.splat._inputs import (
+    background_rows,
+    camera_colors,
+    check_gaussians,
+    check_image,
+    finite_colors,
+    prepare_cameras,
+)
 from nuav2.splat._project import MEAN2D_LIMIT
 from nuav2.splat.constants import (
     ALPHA_FLOOR_DEPTH,
@@ -26,7 +33,6 @@ from nuav2.splat.constants import (
     T_STOP,
 )
 from nuav2.splat.rasterize import RasterOutput, _finish, radii_to_int
-from nuav2.splat.sh import sh_to_rgb
 
 DEFAULT_MAX_ELEMENTS = 40_000_000  # visible Gaussians x pixels per camera
 
@@ -123,18 +129,22 @@ def rasterize_dense(means, quats, log_scales, opacity_logits, colors, world_T_ca
     dtype = means.dtype
     opacities = torch.sigmoid(opacity_logits)
     bg = background_rows(background, len(cams), dtype, means.device)
+    colors, bad_colors = finite_colors(colors)
     rgbs, alphas, exp_depths, metas = [], [], [], []
     for ci in range(len(cams)):
         means2d, conics, z, radii, visible = project_dense(
             means, quats, log_scales, opacities, cams.cam_T_world[ci], cams.K[ci], width, height, near, far,
             radius_clip)
+        col, bad = camera_colors(colors, bad_colors, deg, means, cams.centres_world[ci])
+        if bad is not None:
+            visible = visible & ~bad
+            radii = torch.where(visible[:, None], radii, torch.zeros_like(radii))
         idx = torch.nonzero(visible).flatten()
         if len(idx) * width * height > max_elements:
             raise MemoryError(f"dense reference: {len(idx)} Gaussians x {width}x{height} px exceeds "
                               f"max_elements={max_elements}")
         zd = z.to(dtype)
         idx = idx[torch.argsort(zd[idx], stable=True)]
-        col = colors if deg is None else sh_to_rgb(colors, means, cams.centres_world[ci], deg)
         color_sum, depth_sum, alpha = composite_dense(
             means2d[idx].to(dtype), conics[idx].to(dtype), opacities[idx], col[idx], zd[idx], width, height)
         rgbs.append(color_sum + (1.0 - alpha)[..., None] * bg[ci])

@@ -12,7 +12,7 @@ import importlib.util
 
 import torch
 
-from nuav2.splat._inputs import Cameras, background_rows
+from nuav2.splat._inputs import Cameras, background_rows, finite_colors
 from nuav2.splat.constants import (
     EPS2D,
     LOG_SCALE_MAX,
@@ -46,8 +46,12 @@ def rasterize_gsplat(means, quats, log_scales, opacity_logits, colors, cams: Cam
     scales = torch.exp(log_scales.clamp(LOG_SCALE_MIN, LOG_SCALE_MAX))
     viewmats = torch.as_tensor(cams.cam_T_world, dtype=dtype, device=device)
     Ks = torch.as_tensor(cams.K, dtype=dtype, device=device)
+    colors, bad_colors = finite_colors(colors)          # culled as on the CPU: opacity 0 < 1/255
+    opacities = torch.sigmoid(opacity_logits)
+    if bad_colors is not None:
+        opacities = torch.where(bad_colors, torch.zeros_like(opacities), opacities)
     renders, alphas, meta = gsplat.rasterization(
-        means, unit_quats, scales, torch.sigmoid(opacity_logits), colors, viewmats, Ks, width, height,
+        means, unit_quats, scales, opacities, colors, viewmats, Ks, width, height,
         near_plane=near, far_plane=far, radius_clip=radius_clip, eps2d=EPS2D, sh_degree=sh_degree,
         packed=False, render_mode="RGB+ED", absgrad=True, rasterize_mode="classic")
     alpha = alphas[..., 0]

@@ -14,9 +14,15 @@ from typing import NamedTuple
 import torch
 
 from nuav2.splat._functions import CompositeFn, ProjectFn
-from nuav2.splat._inputs import background_rows, check_gaussians, check_image, prepare_cameras
+from nuav2.splat._inputs import (
+    background_rows,
+    camera_colors,
+    check_gaussians,
+    check_image,
+    finite_colors,
+    prepare_cameras,
+)
 from nuav2.splat.constants import ALPHA_FLOOR_DEPTH
-from nuav2.splat.sh import sh_to_rgb
 
 BACKENDS = ("auto", "cpu", "gsplat")
 _INT32_MAX = 2**31 - 1
@@ -69,6 +75,7 @@ def rasterize(
     deg = check_gaussians(means, quats, log_scales, opacity_logits, colors, sh_degree)
     check_image(width, height, near, far)
     cams = prepare_cameras(world_T_cam, K)
+    background_rows(background, len(cams), means.dtype, means.device)      # shape and finiteness, up front
     if backend in ("auto", "gsplat"):
         from nuav2.splat import gsplat_backend
 
@@ -107,17 +114,20 @@ def _rasterize_cpu(means, quats, log_scales, opacity_logits, colors, cams, width
     absgrad = torch.zeros(n_cams, len(means), 2, dtype=dtype)
     means2d.absgrad = absgrad
     radii_np = radii.numpy()
-    bg = background_rows(background, n_cams, dtype, means.device)
+    colors, bad_colors = finite_colors(colors)
+    bg = None if background is None else background_rows(background, n_cams, dtype, means.device)
     rgbs, alphas, exp_depths = [], [], []
     for c in range(n_cams):
-        col = colors if sh_degree is None else sh_to_rgb(colors, means, cams.centres_world[c], sh_degree)
+        col, bad = camera_colors(colors, bad_colors, sh_degree, means, cams.centres_world[c])
+        if bad is not None:
+            radii_np[c][bad.numpy()] = 0          # culled: also skipped by the projection backward
         color_sum, depth_sum, alpha = CompositeFn.apply(
             means2d[c], conics[c], opacities, col, depths[c], radii_np[c], width, height, absgrad[c])
-        rgbs.append(color_sum + (1.0 - alpha)[..., None] * bg[c])
+        rgbs.append(color_sum if bg is None else color_sum + (1.0 - alpha)[..., None] * bg[c])
         alphas.append(alpha)
         exp_depths.append(depth_sum / alpha.clamp_min(ALPHA_FLOOR_DEPTH))
     return _finish(rgbs, alphas, exp_depths, cams.batched, dict(
-        means2d=means2d, radii=radii_to_int(radii), visible=(radii > 0).any(-1), depths=depths,
+        means2d=means2d, radii=radii, visible=(radii > 0).any(-1), depths=depths,
         conics=conics, backend="cpu"))
 
 

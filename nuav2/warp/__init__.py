@@ -7,12 +7,12 @@ an ImageSource. See docs/modes.md for when to use it instead of render (splat) m
 from nuav2.warp.backward_warp import BlendConfig, SourceView, WarpResult, fill_uncovered, warp_from_sources
 from nuav2.warp.depth_proxy import DepthProxy, GroundSurface, ProxyConfig, ProxyGeometry, render_depth_proxy
 from nuav2.warp.lidar_cloud import CloudConfig, LidarCloud
-from nuav2.warp.naive import closest_source_camera, resize_to_intrinsics
 from nuav2.warp.provider import WarpConfig, WarpOutput, WarpRenderer, warp_image_source
+from nuav2.warp.rotation_baseline import RotationSource, closest_source_camera, rotate_into_target
 from nuav2.warp.tracks import BoxesAt, BoxTracks
 
 __all__ = ["BlendConfig", "BoxTracks", "BoxesAt", "CloudConfig", "DepthProxy", "GroundSurface", "LidarCloud",
-           "ProxyConfig", "ProxyGeometry", "SourceView", "WarpConfig", "WarpOutput", "WarpRenderer",
-           "WarpResult",
-           "closest_source_camera", "fill_uncovered", "render_depth_proxy", "resize_to_intrinsics",
+           "ProxyConfig", "ProxyGeometry", "RotationSource", "SourceView", "WarpConfig", "WarpOutput",
+           "WarpRenderer", "WarpResult",
+           "closest_source_camera", "fill_uncovered", "render_depth_proxy", "rotate_into_target",
            "warp_from_sources", "warp_image_source"]

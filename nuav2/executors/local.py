@@ -1,0 +1,121 @@
+"""Local processes, one log each (the default executor).
+
+Workers are spawned processes that exit when the main process dies (finding: a killed
+``convert`` left its workers running for minutes, finishing shards nobody would merge). A worker
+that dies (OOM killer, a signal) breaks the pool; its logs are retried in a fresh pool, at most
+``max_retries`` times, like a Ray task whose worker died.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import ctypes
+import multiprocessing
+import os
+import signal
+import sys
+import threading
+import time
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
+from dataclasses import replace
+from pathlib import Path
+
+from nuav2.executors.progress import BatchProgress
+from nuav2.executors.task import failure, run_one
+
+PR_SET_PDEATHSIG = 1  # linux/prctl.h
+PARENT_POLL_S = 1.0
+EXIT_GRACE_S = 10.0
+
+
+def _exit_on_sigterm(signum, frame) -> None:  # noqa: ARG001 - signal handler signature
+    # SystemExit unwinds the task, so temp files and .partial directories are removed on the way out.
+    raise SystemExit(128 + signum)
+
+
+def _watch_parent(parent_pid: int) -> None:
+    while True:
+        time.sleep(PARENT_POLL_S)
+        if os.getppid() != parent_pid:
+            os.kill(os.getpid(), signal.SIGTERM)
+            time.sleep(EXIT_GRACE_S)
+            os._exit(1)
+
+
+def exit_with_parent(parent_pid: int) -> None:
+    """Worker initializer: end this process when ``parent_pid`` dies.
+
+    On Linux the kernel sends SIGTERM at once (PR_SET_PDEATHSIG); a polling thread covers other
+    systems. SIGTERM raises SystemExit so the task's cleanup runs; after a grace period the
+    process exits regardless.
+    """
+    signal.signal(signal.SIGTERM, _exit_on_sigterm)
+    if sys.platform.startswith("linux"):
+        with contextlib.suppress(OSError, AttributeError):
+            ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0)
+    if os.getppid() != parent_pid:  # the parent died before the line above
+        os._exit(1)
+    threading.Thread(target=_watch_parent, args=(parent_pid,), daemon=True, name="watch-parent").start()
+
+
+def worker_pool(workers: int, initializer=None, initargs: tuple = ()) -> ProcessPoolExecutor:
+    """A pool of spawned processes that exit with this one (``initializer`` runs after that is set up)."""
+    return ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
+                               initializer=_init_worker, initargs=(os.getpid(), initializer, initargs))
+
+
+def _init_worker(parent_pid: int, initializer, initargs: tuple) -> None:
+    exit_with_parent(parent_pid)
+    if initializer is not None:
+        initializer(*initargs)
+
+
+def run_local(jobs: list[Path], dataroot: Path, options, progress: BatchProgress,
+              fault: str | None = None) -> list[dict]:
+    """Convert ``jobs`` in this process (one worker) or in a pool of ``options.workers`` processes."""
+    if options.workers == 1 or len(jobs) <= 1:
+        results = []
+        inline = replace(options, show_progress=progress.tty)  # per-log bars under the batch bar, on a TTY
+        for log_dir in jobs:
+            progress.update(running=1)
+            r = run_one(log_dir, dataroot, inline, fault)
+            results.append(r)
+            progress.update(running=0, finished=1, failed=r["error"] is not None)
+        return results
+    quiet = replace(options, show_progress=False)
+    results: list[dict] = []
+    todo, attempts = list(jobs), 0
+    while todo:
+        died = _pool_round(todo, dataroot, quiet, progress, fault, results)
+        attempts += 1
+        if died and attempts > options.max_retries:
+            for log_dir in died:
+                results.append(failure(log_dir, f"worker process died {attempts} times (killed, or out of "
+                                                f"memory?) while converting this log", options.mode))
+                progress.update(finished=1, failed=1)
+            break
+        todo = died
+    return results
+
+
+def _pool_round(jobs: list[Path], dataroot: Path, options, progress: BatchProgress, fault: str | None,
+                results: list[dict]) -> list[Path]:
+    """One pool over ``jobs``; returns the logs whose worker died (to retry), appends the others' results."""
+    workers = min(options.workers, len(jobs))
+    died: list[Path] = []
+    with worker_pool(workers) as pool:
+        pending = {pool.submit(run_one, d, dataroot, options, fault): d for d in jobs}
+        while pending:
+            progress.update(running=min(len(pending), workers))
+            done, _ = wait(pending, timeout=progress.line_every_s, return_when=FIRST_COMPLETED)
+            for fut in done:
+                log_dir = pending.pop(fut)
+                try:
+                    r = fut.result()
+                except BrokenProcessPool:
+                    died.append(log_dir)
+                    continue
+                results.append(r)
+                progress.update(finished=1, failed=r["error"] is not None)
+    return died

@@ -1,0 +1,130 @@
+"""The local executor: workers exit when the main process dies; a dead worker's log is retried (bounded)."""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import re
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from test_executor_support import VERSION, convert, tables
+
+from nuav2.executors.progress import BatchProgress
+from nuav2.executors.task import FAULT_ENV
+
+pytest_plugins = ["test_executor_support"]  # the synth_split and reference_tables fixtures
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+def _alive(pid: int) -> bool:
+    """True while ``pid`` runs (a zombie waiting for its reaper counts as gone)."""
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except (FileNotFoundError, IndexError):
+        return False
+    return state != "Z"
+
+
+def _wait_for(predicate, timeout_s: float) -> bool:
+    end = time.monotonic() + timeout_s
+    while time.monotonic() < end:
+        if predicate():
+            return True
+        time.sleep(0.2)
+    return predicate()
+
+
+def test_workers_exit_when_the_main_process_is_killed(synth_split: Path, tmp_path: Path):
+    hook = tmp_path / "hook"
+    hook.mkdir()
+    env = {**os.environ, FAULT_ENV: f"hang:{hook}", "PYTHONPATH": str(REPO)}
+    main = subprocess.Popen([sys.executable, "-m", "nuav2", "convert", "av2", str(synth_split),
+                             str(tmp_path / "out"), "--workers", "2", "--no-progress"],
+                            env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        assert _wait_for(lambda: len(list(hook.glob("*.attempts"))) == 2, 120), "workers never started"
+        workers = [int(p.read_text().split()[0]) for p in hook.glob("*.attempts")]
+        assert all(_alive(pid) for pid in workers)
+        main.send_signal(signal.SIGKILL)
+        main.wait(10)
+        assert _wait_for(lambda: not any(_alive(pid) for pid in workers), 15), \
+            f"workers {[p for p in workers if _alive(p)]} outlived the killed main process"
+    finally:
+        main.kill()
+        for p in hook.glob("*.attempts"):
+            for pid in map(int, p.read_text().split()):
+                if _alive(pid):
+                    os.kill(pid, signal.SIGKILL)
+    assert not (tmp_path / "out" / VERSION).exists()
+
+
+def test_a_killed_worker_is_retried_and_the_tables_stay_identical(
+        synth_split: Path, reference_tables: dict, tmp_path: Path, monkeypatch):
+    hook = tmp_path / "hook"
+    hook.mkdir()
+    monkeypatch.setenv(FAULT_ENV, f"kill:{hook}")
+    out = tmp_path / "out"
+    # A death breaks the whole pool, so logs in flight beside the killed one are redone too, and each
+    # log's own kill can cost a round: allow more rounds than logs (the bound is tested below).
+    assert convert(synth_split, out, "--workers", "2", "--max-retries", "5") == 0
+    attempts = {p.name.split(".")[0]: len(p.read_text().split()) for p in hook.glob("*.attempts")}
+    assert len(attempts) == 3 and min(attempts.values()) >= 2  # each log was killed once, then redone
+    assert tables(out) == reference_tables
+
+
+def test_a_log_that_kills_every_worker_is_given_up_after_the_retries(
+        synth_split: Path, tmp_path: Path, monkeypatch, capsys):
+    hook = tmp_path / "hook"
+    hook.mkdir()
+    monkeypatch.setenv(FAULT_ENV, f"crash:{hook}")
+    out = tmp_path / "out"
+    assert convert(synth_split, out, "--workers", "2", "--max-retries", "1") == 2  # nothing converted
+    report = json.loads((out / "convert_report.json").read_text())
+    assert len(report["failed"]) == 3 and all("worker process died 2 times" in f["error"]
+                                              for f in report["failed"])
+    assert all(len(p.read_text().split()) <= 2 for p in hook.glob("*.attempts"))
+    assert "nuav2 convert: no log converted" in capsys.readouterr().err
+
+
+def test_progress_is_log_lines_when_stderr_is_not_a_terminal_and_the_report_summarises_each_log(
+        synth_split: Path, reference_tables: dict, tmp_path: Path):
+    out = tmp_path / "out"
+    proc = subprocess.run([sys.executable, "-m", "nuav2", "convert", "av2", str(synth_split), str(out),
+                           "--workers", "2"], env={**os.environ, "PYTHONPATH": str(REPO)},
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    assert "\r" not in proc.stderr  # no bar redraws in a log file
+    report = json.loads((out / "convert_report.json").read_text())
+    assert sorted(report["logs"]) == sorted(report["converted"])
+    for summary in report["logs"].values():
+        assert summary["mode"] == "native" and summary["images"] > 0 and summary["seconds"] > 0
+        assert summary["cpu_seconds"] > 0 and summary["peak_rss_mb"] > 0
+    assert tables(out) == reference_tables
+
+
+def test_batch_progress_lines_say_done_failed_running_and_time_left(caplog):
+    progress = BatchProgress(3, line_every_s=0.0)
+    assert not progress.tty  # pytest captures stderr
+    with caplog.at_level(logging.INFO, logger="nuav2.progress"):
+        progress.update(running=2)
+        progress.update(finished=1, failed=1, running=2)
+        progress.update(finished=2, running=0)
+        progress.close()
+    lines = [r.getMessage() for r in caplog.records]
+    assert lines[0].startswith("convert: 0/3 log [failed=0, running=2, left=?]")
+    assert re.match(r"convert: 1/3 log \[failed=1, running=2, left=\d+ s\]", lines[1])
+    assert lines[-1].startswith("convert: 3/3 log [failed=1, running=0, left=0 s]")
+
+
+def test_ray_only_flags_are_refused_with_the_local_executor(synth_split: Path, tmp_path: Path, capsys):
+    for flag, value in (("--ray-address", "auto"), ("--cpus-per-task", "2"), ("--memory-per-task", "4"),
+                        ("--gpus-per-task", "1")):
+        assert convert(synth_split, tmp_path / "out", flag, value) == 2
+        assert capsys.readouterr().err.strip() == f"nuav2 convert: {flag} applies to --executor ray only"
+    assert not (tmp_path / "out").exists()

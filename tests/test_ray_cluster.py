@@ -1,0 +1,85 @@
+"""The cluster recipe of docs/cluster.md on this machine: a head started with ``ray start --head``,
+then ``convert`` and ``infos`` with ``--ray-address HOST:PORT``; and a dead address is one line."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import pytest
+from test_executor_support import convert, descendants_named, infos_files, tables
+
+ray = pytest.importorskip("ray", reason="the ray package is not installed (pip install 'nuav2[ray]')")
+
+pytest_plugins = ["test_executor_support"]  # the synth_split, reference_out and reference_tables fixtures
+
+REPO = Path(__file__).resolve().parent.parent
+RAY_CLI = Path(sys.executable).parent / "ray"
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _head_is_up(address: str, env: dict) -> bool:
+    """`ray status` answers, with or without the token that `ray start --head` may have enabled."""
+    return any(subprocess.run([str(RAY_CLI), "status", "--address", address], env={**env, **auth},
+                              capture_output=True, timeout=60).returncode == 0
+               for auth in ({}, {"RAY_AUTH_MODE": "token"}))
+
+
+@pytest.fixture
+def ray_head():
+    """``ray start --head --block`` on a free port (2 CPUs, no dashboard); SIGTERM stops all it started."""
+    if not RAY_CLI.is_file():
+        pytest.skip(f"{RAY_CLI}: Ray's command line is not beside this Python")
+    if not sys.platform.startswith("linux"):
+        pytest.skip("the process checks read /proc")
+    port = _free_port()
+    address = f"127.0.0.1:{port}"
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")])}
+    head = subprocess.Popen([str(RAY_CLI), "start", "--head", f"--port={port}", "--num-cpus=2",
+                             "--include-dashboard=false", "--disable-usage-stats", "--block"],
+                            env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        end = time.monotonic() + 120
+        while not _head_is_up(address, env):
+            assert head.poll() is None and time.monotonic() < end, "ray start --head did not come up"
+            time.sleep(1.0)
+        yield address
+    finally:
+        head.send_signal(signal.SIGTERM)
+        head.wait(60)
+        current = Path(tempfile.gettempdir()) / "ray" / "ray_current_cluster"  # Ray's pointer to this head
+        if current.is_file() and current.read_text().strip().endswith(f":{port}"):
+            current.unlink()
+    assert not descendants_named({"raylet", "gcs_server"}), "the head left Ray processes behind"
+
+
+def test_convert_and_infos_on_a_cluster_started_with_ray_start(
+        ray_head: str, synth_split: Path, reference_out: Path, reference_tables: dict, tmp_path: Path):
+    assert not ray.is_initialized()
+    out = tmp_path / "out"
+    assert convert(synth_split, out, "--executor", "ray", "--ray-address", ray_head) == 0
+    assert tables(out) == reference_tables
+    report = json.loads((out / "convert_report.json").read_text())
+    assert len(report["converted"]) == 3 and all(s["node"] for s in report["logs"].values())
+    one = infos_files(out, tmp_path / "one")
+    assert infos_files(out, tmp_path / "ray", "--executor", "ray", "--ray-address", ray_head) == one
+
+
+def test_an_address_with_no_cluster_is_a_one_line_error(synth_split: Path, tmp_path: Path, capsys):
+    address = f"127.0.0.1:{_free_port()}"  # nothing listens there
+    assert convert(synth_split, tmp_path / "out", "--executor", "ray", "--ray-address", address) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1
+    assert err[0].startswith(f"nuav2 convert: --ray-address: Ray cluster '{address}' does not answer")
