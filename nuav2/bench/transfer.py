@@ -30,6 +30,7 @@ from nuav2.bench.transfer_data import prepare_data, test_source, train_source
 from nuav2.mapping import (
     MapTensors,
     TrainConfig,
+    bev_seg_scores,
     load_map_tensors,
     load_model,
     predict,
@@ -99,12 +100,14 @@ def run_and_score(
     eval_path = run_dir / EVAL_FILE
     result = json.loads(eval_path.read_text()) if eval_path.is_file() else {}
     if result.get("run_fingerprint") != info["fingerprint"]:
-        preds = predict(load_model(run_dir), test.data)
+        model = load_model(run_dir)
+        preds = predict(model, test.data)
         pred_path = write_results(run_dir / PRED_FILE, preds, cfg.model.classes, {"run": name})
         result = score_with_nuav2_eval(
             pred_path, test.dataroot, cfg.version, test.split, cfg.model.classes, eval_path
         )
         result["run_fingerprint"] = info["fingerprint"]
+        result["bev_seg"] = bev_seg_scores(model, test.data)  # diagnostic, not part of nuav2 eval
         atomic_write_json(eval_path, result, indent=1)
     final_curve = info["curve"][-1]["mAP"] if info["curve"] else None
     return {
@@ -122,6 +125,7 @@ def run_and_score(
             k: result[k]
             for k in ("ap", "class_mean_ap", "map_per_threshold", "mAP", "num_gts", "num_preds", "n_samples")
         },
+        "bev_seg": result["bev_seg"],
         # the in-process curve's last point and the CLI's score must agree (same function, same file)
         "eval_matches_curve": final_curve is None or abs(final_curve - result["mAP"]) < 1e-9,
     }

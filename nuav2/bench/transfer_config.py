@@ -103,9 +103,9 @@ class TransferConfig:
                 train_worlds=4,
                 test_worlds=2,
                 seconds=1.5,
-                steps=400,
-                eval_points=4,
-                finetune_steps=150,
+                steps=300,
+                eval_points=3,
+                finetune_steps=100,
                 fractions=(0.25, 0.5),
             )
         elif size == "smoke":

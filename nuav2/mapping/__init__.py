@@ -13,11 +13,18 @@ by ``nuav2 eval``. ``nuav2 bench transfer`` uses it to rerun the MapGS paper's T
 from nuav2.mapping.config import LossConfig, MapModelConfig, TrainConfig
 from nuav2.mapping.data import MapTensors, load_map_tensors
 from nuav2.mapping.model import MapModel
-from nuav2.mapping.predict import predict, score_in_process, score_with_nuav2_eval, write_results
+from nuav2.mapping.predict import (
+    bev_seg_scores,
+    predict,
+    score_in_process,
+    score_with_nuav2_eval,
+    write_results,
+)
 from nuav2.mapping.train import load_model, train
 
 __all__ = [
     "LossConfig",
+    "bev_seg_scores",
     "MapModel",
     "MapModelConfig",
     "MapTensors",

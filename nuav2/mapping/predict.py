@@ -55,6 +55,34 @@ def predict(model, data: MapTensors, batch_size: int = 4, top_k: int = TOP_K) ->
     return out
 
 
+@torch.no_grad()
+def bev_seg_scores(model, data: MapTensors, batch_size: int = 4, tolerance_cells: int = 1) -> dict:
+    """Precision / recall / F1 of the auxiliary BEV segmentation head against the rasterised map lines
+    (a cell counts as hit within ``tolerance_cells``): a diagnostic of the lifted BEV features that
+    stays informative where the vector mAP is near zero. Not a MapTR metric."""
+    import torch.nn.functional as F
+
+    was_training = model.training
+    model.eval()
+    tp = fp = fn = 0
+    k = 2 * tolerance_cells + 1
+    try:
+        for start in range(0, len(data), batch_size):
+            b = data.batch(list(range(start, min(len(data), start + batch_size))))
+            pred = (model(b["img"], b["lidar2img"], b["img_hw"])["bev_seg"] > 0).float()
+            tgt = b["bev_target"].float()
+            tgt_near = F.max_pool2d(tgt, k, 1, tolerance_cells) > 0
+            pred_near = F.max_pool2d(pred, k, 1, tolerance_cells) > 0
+            tp += int((pred.bool() & tgt_near).sum())
+            fp += int((pred.bool() & ~tgt_near).sum())
+            fn += int((tgt.bool() & ~pred_near).sum())
+    finally:
+        model.train(was_training)
+    precision, recall = tp / max(1, tp + fp), tp / max(1, tp + fn)
+    f1 = 2 * precision * recall / (precision + recall) if precision + recall > 0 else 0.0
+    return {"precision": precision, "recall": recall, "f1": f1}
+
+
 def results_json(preds: dict[str, Scored], classes: Sequence[str], meta: dict | None = None) -> dict:
     """MapTR's ``nuscmap_results.json`` layout."""
     label = {c: i for i, c in enumerate(classes)}
