@@ -85,3 +85,38 @@ def test_a_rerun_reuses_worlds_conversions_and_runs(smoke):
     assert {k: r["eval"]["mAP"] for k, r in again["runs"].items()} == {
         k: r["eval"]["mAP"] for k, r in first["runs"].items()
     }
+
+
+def test_an_interrupted_benchmark_resumes_what_is_missing_and_reuses_the_rest(smoke):
+    """State an interruption leaves: a world log not yet written, merged tables missing beside complete
+    shards, a run killed after its last checkpoint but before ``model.pt``, an evaluation not yet written.
+    The rerun redoes exactly those and gets the same result."""
+    import shutil
+
+    import torch
+
+    out, first = smoke
+    lists = json.loads((out / "world_lists.json").read_text())
+    shutil.rmtree(out / "worlds" / "val" / lists["test"][0])
+    shutil.rmtree(out / "db" / "warp" / "v1.0-nuav2")
+    killed = out / "runs" / "truth-s0"
+    weights = torch.load(killed / "model.pt", weights_only=True)
+    (killed / "model.pt").unlink()
+    (killed / "run.json").unlink()
+    (out / "runs" / "native-s0" / "eval.json").unlink()
+    others = {
+        p: p.stat().st_mtime_ns for p in (out / "runs").glob("*/model.pt") if p.parent.name != "truth-s0"
+    }
+
+    assert main(["bench", "transfer", "--smoke", "--preset", "easy", "--out", str(out), "--no-figures"]) == 0
+    again = json.loads((out / "transfer.json").read_text())
+    assert [w["log_id"] for w in again["worlds"] if w["generated"]] == [lists["test"][0]]
+    warp = again["conversions"]["warp"]
+    assert warp["converted"] == 0 and warp["resumed"] == 1 and warp["samples"] == 3  # tables re-merged
+    resumed = torch.load(killed / "model.pt", weights_only=True)
+    assert all(torch.equal(weights[k], resumed[k]) for k in weights)  # from checkpoint.pt, not retrained
+    assert {p: p.stat().st_mtime_ns for p in others} == others
+    assert (out / "runs" / "native-s0" / "eval.json").is_file()
+    assert {k: r["eval"]["mAP"] for k, r in again["runs"].items()} == {
+        k: r["eval"]["mAP"] for k, r in first["runs"].items()
+    }
