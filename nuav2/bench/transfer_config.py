@@ -3,7 +3,8 @@
 - ``full``: the benchmark (about three hours on 2 cores): 20 training worlds and 6 test worlds
   of 1.5 s, four training sets, two training seeds, fine-tuning on 5 / 10 / 25 % of the oracle
   training set (1, 2 and 5 of its 20 scenes) from scratch and from the nuAV2 model.
-- ``quick``: the same pipeline smaller (about 30 minutes): 4 + 2 worlds, short training.
+- ``quick``: the same pipeline smaller: 4 + 2 worlds, 200-step runs (docs/transfer.md has its
+  measured time).
 - ``smoke``: plumbing only (CI): 1 + 1 tiny worlds, no render mode, a few steps.
 
 Train and test worlds never share a seed, and they lie in different cities (the test worlds are
@@ -103,9 +104,9 @@ class TransferConfig:
                 train_worlds=4,
                 test_worlds=2,
                 seconds=1.5,
-                steps=300,
-                eval_points=3,
-                finetune_steps=100,
+                steps=200,
+                eval_points=2,
+                finetune_steps=60,
                 fractions=(0.25, 0.5),
             )
         elif size == "smoke":
