@@ -77,11 +77,13 @@ def test_tables_and_figures_are_written(smoke):
 def test_a_rerun_reuses_worlds_conversions_and_runs(smoke):
     out, first = smoke
     stamps = {p: p.stat().st_mtime_ns for p in (out / "runs").glob("*/model.pt")}
+    caches = sorted(p.name for p in (out / "cache").glob("maptensors-*.pt"))
     assert main(["bench", "transfer", "--smoke", "--preset", "easy", "--out", str(out), "--no-figures"]) == 0
     again = json.loads((out / "transfer.json").read_text())
     assert not any(w["generated"] for w in again["worlds"])
     assert all(c["converted"] == 0 and c["resumed"] >= 1 for c in again["conversions"].values())
     assert {p: p.stat().st_mtime_ns for p in (out / "runs").glob("*/model.pt")} == stamps
+    assert sorted(p.name for p in (out / "cache").glob("maptensors-*.pt")) == caches  # tensors reused
     assert {k: r["eval"]["mAP"] for k, r in again["runs"].items()} == {
         k: r["eval"]["mAP"] for k, r in first["runs"].items()
     }

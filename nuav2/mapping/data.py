@@ -10,6 +10,7 @@ database's tables and the config skips even the first decode on a rerun.
 
 from __future__ import annotations
 
+import hashlib
 import logging
 import math
 import os
@@ -60,12 +61,12 @@ class MapTensors:
 
 
 def _tables_key(dataroot: Path, version: str) -> list:
-    """What identifies a database's content cheaply: size and mtime of the tables that change with it."""
+    """What identifies a database's content: a hash of the tables that change with it (by content, not
+    mtime: a resumed conversion or a rerun of ``nuav2 split`` rewrites them unchanged)."""
     out = []
     for name in ("sample_data.json", "sample.json", "calibrated_sensor.json", "splits.json"):
         p = dataroot / version / name
-        st = p.stat() if p.is_file() else None
-        out.append([name, st.st_size if st else None, st.st_mtime_ns if st else None])
+        out.append([name, hashlib.sha256(p.read_bytes()).hexdigest() if p.is_file() else None])
     return out
 
 
