@@ -13,6 +13,7 @@ from transfer_dbs import synthetic_truth_db
 from nuav2.mapping import (
     MapModelConfig,
     TrainConfig,
+    bev_seg_scores,
     load_map_tensors,
     load_model,
     predict,
@@ -142,3 +143,28 @@ def test_one_to_many_queries_train_only_and_never_see_the_others():
     for (c1, p1), (c2, p2) in zip(plain, both):
         torch.testing.assert_close(c1, c2[:, : cfg.num_queries], rtol=1e-5, atol=1e-5)
         torch.testing.assert_close(p1, p2[:, : cfg.num_queries], rtol=1e-5, atol=1e-5)
+
+
+class _Replay(torch.nn.Module):
+    """Stands in for the model: hands back the given BEV logits batch by batch."""
+
+    def __init__(self, logits: torch.Tensor, batch_size: int) -> None:
+        super().__init__()
+        self.batches = list(logits.split(batch_size))
+
+    def forward(self, img, lidar2img, img_hw):
+        return {"bev_seg": self.batches.pop(0)}
+
+
+def test_bev_seg_scores_of_perfect_inverted_and_shifted_maps(truth_db):
+    data = load_map_tensors(truth_db, VERSION, SPLIT, SMALL)
+    target = data.bev_target.float()
+    perfect = bev_seg_scores(_Replay(20 * target - 10, 4), data)
+    assert perfect["ap"] == pytest.approx(1.0) and perfect["f1"] == pytest.approx(1.0)
+    assert 0 < perfect["positive_share"] < 0.5
+    inverted = bev_seg_scores(_Replay(10 - 20 * target, 4), data)
+    assert inverted["ap"] < 2 * inverted["positive_share"] and inverted["f1"] < 0.5
+    # lines one cell off still count for F1 (tolerance); moved further, only cells along the shift do
+    near = bev_seg_scores(_Replay((20 * target - 10).roll(1, dims=-1), 4), data)
+    far = bev_seg_scores(_Replay((20 * target - 10).roll((3, 3), dims=(-2, -1)), 4), data)
+    assert near["f1"] > 0.9 > far["f1"]

@@ -31,7 +31,7 @@ def _result(maps: dict[str, list[float]], ft: dict[tuple[float, str], list[float
     for s, values in maps.items():
         for seed, m in zip(cfg.seeds, values):
             runs[f"{s}-s{seed}"] = {"set": s, "seed": seed, "keyframes": 60, "scenes": 4, "eval": _eval(m),
-                                      "bev_seg": {"f1": m / 2}}
+                                      "bev_seg": {"ap": m / 2}}
     for (f, arm), values in (ft or {}).items():
         for seed, m in zip(cfg.seeds, values):
             runs[f"ft{f}-{arm}-s{seed}"] = {
@@ -41,7 +41,7 @@ def _result(maps: dict[str, list[float]], ft: dict[tuple[float, str], list[float
                 "keyframes": 15,
                 "scenes": 1,
                 "eval": _eval(m),
-                "bev_seg": {"f1": m / 2},
+                "bev_seg": {"ap": m / 2},
             }
     return {"config": cfg.to_dict(), "runs": runs}
 
@@ -60,7 +60,7 @@ def test_means_spreads_and_ratios():
     assert v["on_means"] and v["seeds_holding"] == 2
     w = s["verdict"]["oracle_gt_warp_gt_av2"]
     assert w["on_means"] and w["seeds_holding"] == 2
-    assert v["bev_seg_f1_on_means"] and s["table1"]["truth"]["bev_seg_f1"]["mean"] == pytest.approx(0.4)
+    assert v["bev_seg_ap_on_means"] and s["table1"]["truth"]["bev_seg_ap"]["mean"] == pytest.approx(0.4)
 
 
 def test_the_verdict_says_when_the_ordering_fails():

@@ -100,14 +100,15 @@ def run_and_score(
     eval_path = run_dir / EVAL_FILE
     result = json.loads(eval_path.read_text()) if eval_path.is_file() else {}
     if result.get("run_fingerprint") != info["fingerprint"]:
-        model = load_model(run_dir)
-        preds = predict(model, test.data)
+        preds = predict(load_model(run_dir), test.data)
         pred_path = write_results(run_dir / PRED_FILE, preds, cfg.model.classes, {"run": name})
         result = score_with_nuav2_eval(
             pred_path, test.dataroot, cfg.version, test.split, cfg.model.classes, eval_path
         )
         result["run_fingerprint"] = info["fingerprint"]
-        result["bev_seg"] = bev_seg_scores(model, test.data)  # diagnostic, not part of nuav2 eval
+        atomic_write_json(eval_path, result, indent=1)
+    if "ap" not in result.get("bev_seg", {}):  # the diagnostic, not part of nuav2 eval; added to older evals
+        result["bev_seg"] = bev_seg_scores(load_model(run_dir), test.data)
         atomic_write_json(eval_path, result, indent=1)
     final_curve = info["curve"][-1]["mAP"] if info["curve"] else None
     return {

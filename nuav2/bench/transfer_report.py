@@ -37,7 +37,7 @@ def _aggregate(runs: list[dict], classes: list[str]) -> dict:
         "keyframes": runs[0]["keyframes"],
         "scenes": runs[0]["scenes"],
         "mAP": _stats([r["eval"]["mAP"] for r in runs]),
-        "bev_seg_f1": _stats([r["bev_seg"]["f1"] for r in runs]),
+        "bev_seg_ap": _stats([r["bev_seg"]["ap"] for r in runs]),
         "class_mean_ap": {c: _stats([r["eval"]["class_mean_ap"][c] for r in runs]) for c in classes},
         "ap": {c: {t: _stats([r["eval"]["ap"][c][t] for r in runs]) for t in thr} for c in classes},
     }
@@ -87,7 +87,7 @@ def verdicts(table1: dict, table2: dict, by_seed: dict) -> dict:
     """Does the paper's ordering hold? oracle > nuAV2 > AV2 on the test worlds; pretraining helps."""
     out: dict = {}
     m = {s: v["mAP"]["mean"] for s, v in table1.items()}
-    f1 = {s: v["bev_seg_f1"]["mean"] for s, v in table1.items()}
+    bev = {s: v["bev_seg_ap"]["mean"] for s, v in table1.items()}
     for nu in ("render", "warp"):
         if {nu, "native", "truth"} <= set(m):
             seeds = sorted(by_seed[nu])
@@ -100,8 +100,8 @@ def verdicts(table1: dict, table2: dict, by_seed: dict) -> dict:
                 "gain_over_av2_mAP": m[nu] - m["native"],
                 "gap_to_oracle_mAP": m["truth"] - m[nu],
                 # the same ordering on the BEV segmentation diagnostic (informative where mAP is ~0)
-                "bev_seg_f1_on_means": f1["truth"] > f1[nu] > f1["native"],
-                "bev_seg_f1": {s: f1[s] for s in ("native", nu, "truth")},
+                "bev_seg_ap_on_means": bev["truth"] > bev[nu] > bev["native"],
+                "bev_seg_ap": {s: bev[s] for s in ("native", nu, "truth")},
             }
     if table2:
         out["pretraining_helps"] = {
@@ -137,7 +137,7 @@ def format_tables(result: dict) -> str:
     head = (
         "| training set | keyframes | "
         + " | ".join(CLASS_SHORT.get(c, c) for c in classes)
-        + " | mAP | BEV-seg F1 (diagnostic) |"
+        + " | mAP | BEV-seg AP (diagnostic) |"
     )
     sep = "|" + "---|" * (len(classes) + 4)
     lines = [
@@ -152,7 +152,7 @@ def format_tables(result: dict) -> str:
         lines.append(
             f"| {SET_LABELS[s]} | {row['keyframes']} | "
             + " | ".join(_pm(row["class_mean_ap"][c]) for c in classes)
-            + f" | **{_pm(row['mAP'])}** | {_pm(row['bev_seg_f1'])} |"
+            + f" | **{_pm(row['mAP'])}** | {_pm(row['bev_seg_ap'])} |"
         )
     for s, paper in PAPER_TABLE1.items():
         lines.append(
@@ -223,10 +223,10 @@ def verdict_lines(result: dict) -> list[str]:
                 f"oracle > nuAV2 ({nu}) > AV2: {'holds' if v['on_means'] else 'does NOT hold'} on the means "
                 f"({v['seeds_holding']} of {v['seeds']} seeds); "
                 f"nuAV2 - AV2 = {100 * v['gain_over_av2_mAP']:+.1f} mAP, "
-                f"oracle - nuAV2 = {100 * v['gap_to_oracle_mAP']:+.1f} mAP; on the BEV-seg F1 diagnostic "
-                f"{'holds' if v['bev_seg_f1_on_means'] else 'does NOT hold'} (AV2 "
-                f"{100 * v['bev_seg_f1']['native']:.1f}, nuAV2 {100 * v['bev_seg_f1'][nu]:.1f}, oracle "
-                f"{100 * v['bev_seg_f1']['truth']:.1f})"
+                f"oracle - nuAV2 = {100 * v['gap_to_oracle_mAP']:+.1f} mAP; on the BEV-seg AP diagnostic "
+                f"{'holds' if v['bev_seg_ap_on_means'] else 'does NOT hold'} (AV2 "
+                f"{100 * v['bev_seg_ap']['native']:.1f}, nuAV2 {100 * v['bev_seg_ap'][nu]:.1f}, oracle "
+                f"{100 * v['bev_seg_ap']['truth']:.1f})"
             )
         elif key == "pretraining_helps":
             for f, p in v.items():
