@@ -76,6 +76,18 @@ def test_the_verdict_says_when_the_ordering_fails():
     assert not p["holds"] and p["seeds_holding"] == 1 and p["gain_mAP"] == pytest.approx(0.0)
     text = format_tables({**r, **s, "prior_only": {}})
     assert "does NOT hold" in text and "does NOT help" in text and "4.25x" in text and "29 %" in text
+    assert "not measurable" not in text
+
+
+def test_differences_below_the_tables_resolution_are_ties():
+    s = summarize(
+        _result(
+            {"native": [0.0, 0.0], "render": [0.0004, 0.0], "truth": [0.0008, 0.0]},
+            {(0.25, "scratch"): [0.0, 0.0], (0.25, "pretrained"): [0.0004, 0.0004]},
+        )
+    )
+    v, p = s["verdict"]["oracle_gt_render_gt_av2"], s["verdict"]["pretraining_helps"]["0.25"]
+    assert not v["on_means"] and not v["measurable"] and not p["holds"] and not p["measurable"]
 
 
 def test_a_zero_baseline_gives_no_ratio():

@@ -16,6 +16,9 @@ import numpy as np
 from nuav2.atomic import atomic_write_bytes
 from nuav2.bench.transfer_config import PAPER_RATIOS, PAPER_TABLE1, PAPER_TABLE2, SET_LABELS
 
+# mAP differences below this (0.1 point x100, the tables' resolution) are ties, not orderings
+MAP_RESOLUTION = 0.001
+
 CLASS_SHORT = {"divider": "Div.", "ped_crossing": "Cross.", "boundary": "Bound.", "centerline": "Center."}
 
 
@@ -92,7 +95,9 @@ def verdicts(table1: dict, table2: dict, by_seed: dict) -> dict:
         if {nu, "native", "truth"} <= set(m):
             seeds = sorted(by_seed[nu])
             out[f"oracle_gt_{nu}_gt_av2"] = {
-                "on_means": m["truth"] > m[nu] > m["native"],
+                "on_means": m["truth"] - m[nu] >= MAP_RESOLUTION and m[nu] - m["native"] >= MAP_RESOLUTION,
+                # False: every mean below the tables' resolution, so no ordering can be read at all
+                "measurable": max(m["truth"], m[nu], m["native"]) >= MAP_RESOLUTION,
                 "seeds_holding": sum(
                     by_seed["truth"][s] > by_seed[nu][s] > by_seed["native"][s] for s in seeds
                 ),
@@ -107,7 +112,9 @@ def verdicts(table1: dict, table2: dict, by_seed: dict) -> dict:
         out["pretraining_helps"] = {
             f: {
                 "gain_mAP": row["pretrained"]["mAP"]["mean"] - row["scratch"]["mAP"]["mean"],
-                "holds": row["pretrained"]["mAP"]["mean"] > row["scratch"]["mAP"]["mean"],
+                "holds": row["pretrained"]["mAP"]["mean"] - row["scratch"]["mAP"]["mean"] >= MAP_RESOLUTION,
+                "measurable": max(row["pretrained"]["mAP"]["mean"], row["scratch"]["mAP"]["mean"])
+                >= MAP_RESOLUTION,
                 "seeds_holding": sum(
                     p > s for p, s in zip(row["pretrained"]["mAP"]["values"], row["scratch"]["mAP"]["values"])
                 ),
@@ -214,13 +221,19 @@ def format_tables(result: dict) -> str:
     return "\n".join(lines)
 
 
+def _holds(v: dict) -> str:
+    if not v["measurable"]:
+        return "does NOT hold (not measurable: every mAP below 0.1)"
+    return "holds" if v["on_means"] else "does NOT hold"
+
+
 def verdict_lines(result: dict) -> list[str]:
     out = []
     for key, v in result["verdict"].items():
         if key.startswith("oracle_gt_"):
             nu = key.split("_")[2]
             out.append(
-                f"oracle > nuAV2 ({nu}) > AV2: {'holds' if v['on_means'] else 'does NOT hold'} on the means "
+                f"oracle > nuAV2 ({nu}) > AV2: {_holds(v)} on the means "
                 f"({v['seeds_holding']} of {v['seeds']} seeds); "
                 f"nuAV2 - AV2 = {100 * v['gain_over_av2_mAP']:+.1f} mAP, "
                 f"oracle - nuAV2 = {100 * v['gap_to_oracle_mAP']:+.1f} mAP; on the BEV-seg AP diagnostic "
@@ -232,7 +245,8 @@ def verdict_lines(result: dict) -> list[str]:
             for f, p in v.items():
                 out.append(
                     f"pretraining on nuAV2 at {100 * float(f):g} %: "
-                    f"{'helps' if p['holds'] else 'does NOT help'} "
+                    f"{'helps' if p['holds'] else 'does NOT help'}"
+                    f"{'' if p['measurable'] else ' (every mAP below 0.1: not measurable)'} "
                     f"({100 * p['gain_mAP']:+.1f} mAP, {p['seeds_holding']} of "
                     f"{len(result['config']['seeds'])} seeds)"
                 )

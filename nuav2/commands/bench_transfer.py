@@ -64,7 +64,7 @@ def run(args: argparse.Namespace) -> int:
         cfg = TransferConfig.for_size(size, **overrides)
     except ValueError as e:
         raise UsageError(str(e)) from e
-    command = "nuav2 " + " ".join(shlex.quote(a) for a in sys.argv[2:]) if sys.argv[1:2] == ["bench"] else ""
+    command = "nuav2 " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv[1:2] == ["bench"] else ""
     result = run_transfer(
         cfg,
         args.out,
