@@ -1,8 +1,9 @@
 """What ``nuav2 bench transfer`` builds and trains: worlds, conversions, runs (three sizes).
 
-- ``full``: the benchmark (about three hours on 2 cores): 20 training worlds and 6 test worlds
-  of 1.5 s, four training sets, two training seeds, fine-tuning on 5 / 10 / 25 % of the oracle
-  training set (1, 2 and 5 of its 20 scenes) from scratch and from the nuAV2 model.
+- ``full``: the benchmark (not yet run; estimated 4-5 h on 2 cores, docs/transfer.md): 20 training
+  worlds and 6 test worlds of 1.5 s, four training sets, two training seeds, fine-tuning on
+  5 / 10 / 25 % of the oracle training set (1, 2 and 5 of its 20 scenes)
+  from scratch and from the nuAV2 model.
 - ``quick``: the same pipeline smaller: 4 + 2 worlds, 200-step runs (docs/transfer.md has its
   measured time).
 - ``smoke``: plumbing only (CI): 1 + 1 tiny worlds, no render mode, a few steps.

@@ -25,7 +25,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--out", type=Path, required=True, help="output folder (reused on a rerun)")
     size = p.add_mutually_exclusive_group()
-    size.add_argument("--quick", action="store_true", help="a smaller version (about 30 minutes on 2 cores)")
+    size.add_argument(
+        "--quick", action="store_true", help="a smaller version (measured time in docs/transfer.md)"
+    )
     size.add_argument(
         "--smoke", action="store_true", help="plumbing check: two tiny worlds, a few steps (CI)"
     )
