@@ -4,6 +4,8 @@ warp and render mode. The writer, tables, LIDAR_TOP and maps are the same in all
 - native: the log's own cameras (re-expressed in the ground-level output ego frame) and images.
 - warp / render: the target rig's cameras (``--rig``, ``--scale``), one image per camera at
   each sample, produced by the depth-warp renderer or the Gaussian-splat reconstruction.
+- truth (synthetic logs only): the target rig's cameras, rendered exactly from the log's saved
+  world by the ground-truth renderer (:mod:`nuav2.truth_images`).
 
 Re-rendered images also get a confidence (covered fraction / coverage of source views),
 recorded per image file so users can drop weak frames (``nuav2_image_quality.json``).
@@ -24,7 +26,7 @@ from nuav2.nuscenes_db.writer import output_rig_native
 from nuav2.rig import CameraSpec, Rig, load_rig
 from nuav2.scene import SceneLog
 
-MODES = ("native", "warp", "render")
+MODES = ("native", "warp", "render", "truth")
 QUALITY_FILE = "nuav2_image_quality.json"
 
 
@@ -79,6 +81,10 @@ def image_source_for(scene: SceneLog, mode: str, dataroot: Path, *, image_link: 
         source = render_image_source(scene, out_rig, preset=recon_preset, min_confidence=min_confidence,
                                      checkpoint_dir=ckpt, progress=progress)
         return out_rig, QualityRecordingImages(source, Path(dataroot))
+    if mode == "truth":
+        from nuav2.truth_images import truth_image_source
+
+        return out_rig, truth_image_source(scene)
     raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
 
 

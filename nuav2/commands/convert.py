@@ -11,7 +11,8 @@ from nuav2.cli import group
 from nuav2.image_sources import MODES
 
 # Flags that only some modes use: given in another mode they are an error, not silently ignored.
-_MODE_FLAGS = {"rig": ("--rig", ("warp", "render")), "scale": ("--scale", ("warp", "render")),
+_TARGET_RIG_MODES = ("warp", "render", "truth")
+_MODE_FLAGS = {"rig": ("--rig", _TARGET_RIG_MODES), "scale": ("--scale", _TARGET_RIG_MODES),
                "recon_preset": ("--recon-preset", ("render",)),
                "min_confidence": ("--min-confidence", ("render",))}
 
@@ -77,11 +78,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--mode", choices=MODES, default="native",
                    help="native: keep AV2's own cameras and images (the paper's AV2 baseline); "
                         "warp: fast depth-warp of the source images into the target rig; "
-                        "render: Gaussian-splat reconstruction rendered in the target rig (nuAV2)")
+                        "render: Gaussian-splat reconstruction rendered in the target rig (nuAV2); "
+                        "truth: a synthetic log's world rendered exactly in the target rig (the oracle)")
     p.add_argument("--rig", default=None,
-                   help="warp/render: target rig, a name in rig_specs/ or a spec path (default: nuscenes)")
+                   help="warp/render/truth: target rig, a name in rig_specs/ or a spec path "
+                        "(default: nuscenes)")
     p.add_argument("--scale", type=float, default=None,
-                   help="warp/render: target image resolution factor, e.g. 0.25 (default: 1)")
+                   help="warp/render/truth: target image resolution factor, e.g. 0.25 (default: 1)")
     p.add_argument("--min-confidence", type=float, default=None,
                    help="render: leave out sample times where a target camera's confidence is below this "
                         "(default: 0)")

@@ -1,0 +1,237 @@
+"""``nuav2 bench transfer``: the MapGS paper's Tables 1 and 2 rerun end to end on synthetic worlds.
+
+Does re-rendering AV2 into the target rig close the camera-rig gap? Here the target rig's true
+images exist (the synthetic world renders them exactly), so the paper's logic can run on one
+machine: train the small mapping model (:mod:`nuav2.mapping`) on the training worlds as AV2 has
+them (native rig), as nuAV2 (warp and render into the nuScenes rig) and as the target rig's
+truth (the oracle), and score every model with ``nuav2 eval`` on held-out test worlds' truth
+in the nuScenes rig (Table 1, over several training seeds). Then fine-tune on 5 / 10 / 25 % of
+the oracle training set from scratch and from the nuAV2 model (Table 2).
+
+Everything lands under one output folder and is reused on a rerun (worlds, conversions, cached
+tensors, finished runs, their evaluations), so an interrupted benchmark resumes; a changed
+setting redoes only what depends on it (keys are config fingerprints).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import torch
+
+from nuav2.atomic import atomic_write_json
+from nuav2.bench.transfer_config import TransferConfig
+from nuav2.bench.transfer_data import prepare_data, test_source, train_source
+from nuav2.mapping import (
+    MapTensors,
+    TrainConfig,
+    bev_seg_scores,
+    load_map_tensors,
+    load_model,
+    predict,
+    score_in_process,
+    score_with_nuav2_eval,
+    train,
+    write_results,
+)
+
+log = logging.getLogger(__name__)
+
+RESULT_FILE = "transfer.json"
+EVAL_FILE = "eval.json"
+PRED_FILE = "predictions.json"
+_CURVE_KEYS = ("mAP", "class_mean_ap", "map_per_threshold")
+
+
+def _train_config(cfg: TransferConfig, steps: int, seed: int, eval_points: int) -> TrainConfig:
+    return TrainConfig(
+        steps=steps,
+        batch_size=cfg.batch_size,
+        lr=cfg.lr,
+        seed=seed,
+        threads=cfg.threads,
+        eval_every=max(1, steps // max(1, eval_points)),
+        checkpoint_every=max(1, min(250, steps)),
+    )
+
+
+class TestSet:
+    """The test worlds' truth: tensors for the model, GT vectors for the in-training curve, and where
+    ``nuav2 eval`` finds the same GT (dataroot, version, split)."""
+
+    def __init__(self, cfg: TransferConfig, out: Path) -> None:
+        from nuav2.maptr.vectorize import gt_vectors_for_split
+
+        self.cfg = cfg
+        self.dataroot, self.split = test_source(cfg, out)
+        self.data = load_map_tensors(
+            self.dataroot, cfg.version, self.split, cfg.model, cache_dir=out / "cache"
+        )
+        self.gts = gt_vectors_for_split(self.dataroot, cfg.version, self.split, patch=tuple(cfg.model.patch))
+
+    def curve_point(self, model) -> dict:
+        r = score_in_process(predict(model, self.data), self.gts, self.cfg.model.classes)
+        return {k: r[k] for k in _CURVE_KEYS}
+
+    def blank(self) -> MapTensors:
+        """The test set with every image a flat grey: what a model predicts from its prior alone."""
+        return replace(self.data, img=torch.full_like(self.data.img, 128))
+
+
+def run_and_score(
+    cfg: TransferConfig,
+    name: str,
+    run_dir: Path,
+    data: MapTensors,
+    tcfg: TrainConfig,
+    test: TestSet,
+    init: Path | None = None,
+) -> dict:
+    """Train (or reuse) one run, write its MapTR result file on the test set, score it with ``nuav2 eval``."""
+    log.info(
+        "run %s: %d keyframes, %d steps%s", name, len(data), tcfg.steps, f", from {init}" if init else ""
+    )
+    info = train(cfg.model, tcfg, data, run_dir, init_weights=init, evaluator=test.curve_point)
+    eval_path = run_dir / EVAL_FILE
+    result = json.loads(eval_path.read_text()) if eval_path.is_file() else {}
+    if result.get("run_fingerprint") != info["fingerprint"]:
+        preds = predict(load_model(run_dir), test.data)
+        pred_path = write_results(run_dir / PRED_FILE, preds, cfg.model.classes, {"run": name})
+        result = score_with_nuav2_eval(
+            pred_path, test.dataroot, cfg.version, test.split, cfg.model.classes, eval_path
+        )
+        result["run_fingerprint"] = info["fingerprint"]
+        atomic_write_json(eval_path, result, indent=1)
+    if "ap" not in result.get("bev_seg", {}):  # the diagnostic, not part of nuav2 eval; added to older evals
+        result["bev_seg"] = bev_seg_scores(load_model(run_dir), test.data)
+        atomic_write_json(eval_path, result, indent=1)
+    final_curve = info["curve"][-1]["mAP"] if info["curve"] else None
+    return {
+        "name": name,
+        "run_dir": str(run_dir),
+        "keyframes": info["data"]["keyframes"],
+        "scenes": len(info["data"]["scenes"]),
+        "steps": info["steps"],
+        "init": str(init) if init else None,
+        "seed": tcfg.seed,
+        "curve": info["curve"],
+        "elapsed": info["elapsed"],
+        "load_avg": info["load_avg"],
+        "eval": {
+            k: result[k]
+            for k in ("ap", "class_mean_ap", "map_per_threshold", "mAP", "num_gts", "num_preds", "n_samples")
+        },
+        "bev_seg": result["bev_seg"],
+        # the in-process curve's last point and the CLI's score must agree (same function, same file)
+        "eval_matches_curve": final_curve is None or abs(final_curve - result["mAP"]) < 1e-9,
+    }
+
+
+def run_table1(cfg: TransferConfig, out: Path, test: TestSet) -> dict[str, dict]:
+    runs = {}
+    for name in cfg.sets:
+        root, split = train_source(cfg, out, name)
+        data = load_map_tensors(root, cfg.version, split, cfg.model, cache_dir=out / "cache")
+        for seed in cfg.seeds:
+            key = f"{name}-s{seed}"
+            runs[key] = {
+                "set": name,
+                **run_and_score(
+                    cfg,
+                    key,
+                    out / "runs" / key,
+                    data,
+                    _train_config(cfg, cfg.steps, seed, cfg.eval_points),
+                    test,
+                ),
+            }
+    return runs
+
+
+def prior_only(cfg: TransferConfig, out: Path, test: TestSet) -> dict:
+    """The oracle models on flat grey test images: how much of their score the map prior alone gives."""
+    res = {}
+    for seed in cfg.seeds:
+        model = load_model(out / "runs" / f"truth-s{seed}")
+        r = score_in_process(predict(model, test.blank()), test.gts, cfg.model.classes)
+        res[f"truth-s{seed}"] = {k: r[k] for k in _CURVE_KEYS}
+    return res
+
+
+def run_table2(cfg: TransferConfig, out: Path, test: TestSet) -> dict[str, dict]:
+    runs = {}
+    root, split = train_source(cfg, out, "truth")
+    for frac in cfg.fractions:
+        data = load_map_tensors(
+            root, cfg.version, split, cfg.model, fraction=frac, seed=cfg.subset_seed, cache_dir=out / "cache"
+        )
+        for seed in cfg.seeds:
+            tcfg = _train_config(cfg, cfg.finetune_steps, seed, 2)
+            for arm in ("scratch", "pretrained"):
+                init = (
+                    out / "runs" / f"{cfg.pretrain_set}-s{seed}" / "model.pt" if arm == "pretrained" else None
+                )
+                key = f"ft{round(frac * 100):g}-{arm}-s{seed}"
+                runs[key] = {
+                    "fraction": frac,
+                    "arm": arm,
+                    **run_and_score(cfg, key, out / "runs" / key, data, tcfg, test, init),
+                }
+    return runs
+
+
+def run_transfer(
+    cfg: TransferConfig,
+    out: str | Path,
+    *,
+    command: str = "",
+    progress: bool | None = None,
+    figures: bool = True,
+) -> dict:
+    """The whole benchmark under ``out``; returns (and writes ``transfer.json``) the result."""
+    from nuav2.bench.transfer_report import summarize, write_figures, write_markdown
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    progress = True if progress is None else progress
+    t0, c0, load0 = time.perf_counter(), time.process_time(), list(os.getloadavg())
+    torch.set_num_threads(cfg.threads)
+    data_info = prepare_data(cfg, out, progress)
+    t_data = time.perf_counter() - t0
+    test = TestSet(cfg, out)
+    table1 = run_table1(cfg, out, test)
+    table2 = run_table2(cfg, out, test) if cfg.fractions else {}
+    result = {
+        "benchmark": "transfer",
+        "command": command,
+        "config": cfg.to_dict(),
+        "output": str(out),
+        "test_set": {
+            "dataroot": str(test.dataroot),
+            "version": cfg.version,
+            "split": test.split,
+            "keyframes": len(test.data),
+            "scenes": test.data.meta["scenes"],
+        },
+        **data_info,
+        "runs": {**table1, **table2},
+        "prior_only": prior_only(cfg, out, test),
+        "timing": {
+            "wall_s": time.perf_counter() - t0,
+            "cpu_s_main_process": time.process_time() - c0,
+            "data_wall_s": t_data,
+            "load_avg_start": load0,
+            "load_avg_end": list(os.getloadavg()),
+        },
+    }
+    result.update(summarize(result))
+    if figures:
+        result["figures"] = write_figures(result, out, test)
+    atomic_write_json(out / RESULT_FILE, result, indent=1)
+    write_markdown(result, out / "transfer.md")
+    return result

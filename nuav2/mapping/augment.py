@@ -1,0 +1,55 @@
+"""Training augmentation: photometric jitter per camera, and random mirroring of the BEV frame.
+
+The BEV mirror (as in BEVDet's BEV-space augmentation) flips the LIDAR_TOP frame's x and / or y
+axis: ``lidar2img`` becomes ``lidar2img @ F`` with ``F = diag(sx, sy, 1, 1)``, so every pixel's
+ray lands on the mirrored 3-D points (same pixel, same depth), and the GT polylines and the BEV
+target are mirrored with it; the images, their perspective-view and depth targets are unchanged.
+The patch is symmetric, so nothing leaves it. Four mirror images of every keyframe keep a small
+training set from being memorised as a map prior.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from nuav2.maptr.fixed_points import PAD_VALUE
+
+
+def photometric(img: torch.Tensor, gen: torch.Generator) -> torch.Tensor:
+    """Per-camera brightness / contrast / colour jitter (MapTR trains with photometric distortion)."""
+    B, N = img.shape[:2]
+    x = img.float()
+    gain = 1.0 + 0.25 * (torch.rand(B, N, 1, 1, 1, generator=gen) - 0.5) * 2
+    colour = 1.0 + 0.08 * (torch.rand(B, N, 3, 1, 1, generator=gen) - 0.5) * 2
+    bias = 20.0 * (torch.rand(B, N, 1, 1, 1, generator=gen) - 0.5) * 2
+    mean = x.mean(dim=(2, 3, 4), keepdim=True)
+    contrast = 1.0 + 0.25 * (torch.rand(B, N, 1, 1, 1, generator=gen) - 0.5) * 2
+    x = (x - mean) * contrast + mean
+    return (x * gain * colour + bias).clamp(0, 255)
+
+
+def mirror(batch: dict, signs: torch.Tensor) -> dict:
+    """The batch with sample b's BEV frame mirrored by ``signs[b] = (sx, sy)`` (each +-1)."""
+    out = dict(batch)
+    B = len(signs)
+    F = torch.eye(4).repeat(B, 1, 1)
+    F[:, 0, 0], F[:, 1, 1] = signs[:, 0], signs[:, 1]
+    out["lidar2img"] = batch["lidar2img"] @ F[:, None]
+    shifts = []
+    for b, s in enumerate(batch["gt_shifts"]):
+        real = s > PAD_VALUE / 2
+        shifts.append(torch.where(real, s * signs[b].to(s.dtype), s))
+    out["gt_shifts"] = shifts
+    bev = batch["bev_target"].clone()
+    for b in range(B):
+        dims = [d for d, sign in ((-1, signs[b, 0]), (-2, signs[b, 1])) if sign < 0]
+        if dims:
+            bev[b] = bev[b].flip(dims)
+    out["bev_target"] = bev
+    return out
+
+
+def bev_flip(batch: dict, gen: torch.Generator) -> dict:
+    """``mirror`` with signs drawn at random (each axis flipped with probability 1/2)."""
+    signs = torch.where(torch.rand(len(batch["gt_shifts"]), 2, generator=gen) < 0.5, -1.0, 1.0)
+    return mirror(batch, signs)

@@ -1,0 +1,48 @@
+"""The camera-only mapping model: images + calibration -> MapTR-format vectors (and aux maps).
+
+backbone (from scratch) -> depth-based lift into the LIDAR_TOP BEV grid -> BEV encoder ->
+vector decoder; two 1x1 heads give MapTRv2's auxiliary dense outputs (BEV segmentation of the
+map lines, and their perspective-view segmentation on the image features).
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+from nuav2.mapping.backbone import ImageBackbone
+from nuav2.mapping.config import MapModelConfig
+from nuav2.mapping.head import BEVEncoder, VectorDecoder
+from nuav2.mapping.lift import LiftSplat
+
+
+class MapModel(nn.Module):
+    def __init__(self, cfg: MapModelConfig) -> None:
+        super().__init__()
+        self.cfg = cfg
+        k = len(cfg.classes)
+        self.backbone = ImageBackbone(cfg.stem_channels, cfg.stage_channels, cfg.feat_channels)
+        self.lift = LiftSplat(cfg, cfg.feat_channels)
+        self.bev_encoder = BEVEncoder(cfg.feat_channels, cfg.bev_channels)
+        self.decoder = VectorDecoder(cfg, cfg.bev_channels)
+        self.bev_seg = nn.Conv2d(cfg.bev_channels, k, 1)
+        self.pv_seg = nn.Conv2d(cfg.feat_channels, k, 1)
+        prior = -4.6  # sigmoid ~ 1 %: map lines cover few pixels
+        for head in (self.bev_seg, self.pv_seg):
+            nn.init.constant_(head.bias, prior)
+
+    def forward(
+        self, img: torch.Tensor, lidar2img: torch.Tensor, img_hw: torch.Tensor, one2many: bool = False
+    ) -> dict:
+        """``img`` (B, N, 3, H, W) uint8, ``lidar2img`` (B, N, 4, 4) for its pixels, ``img_hw`` (B, N, 2)."""
+        B, N = img.shape[:2]
+        feats = self.backbone(img.flatten(0, 1))
+        h, w = feats.shape[-2:]
+        bev, depth = self.lift(feats.view(B, N, -1, h, w), lidar2img, img_hw)
+        bev = self.bev_encoder(bev)
+        return {
+            "layers": self.decoder(bev, one2many),
+            "bev_seg": self.bev_seg(bev),
+            "pv_seg": self.pv_seg(feats).view(B, N, -1, h, w),
+            "depth": depth,
+        }
