@@ -8,8 +8,8 @@ region (whole, ground, objects, sky) and the lane-paint offset, all in one proce
 Timing is interleaved: frame by frame, each candidate renders its frame in turn (the order rotates
 per frame), so load from other jobs falls on all of them alike; wall and CPU seconds are taken per
 frame with the load. One-off costs are timed on their own: the warp's set-up (LiDAR aggregation,
-box tracks) and render mode's reconstruction, and the amortised cost per frame adds them spread
-over the log's frames. Candidates:
+box tracks, the source-exposure solve) and render mode's reconstruction, and the amortised cost per
+frame adds them spread over the log's frames. Candidates:
 
 - ``rotation``: the closest-axis source camera's nearest image turned into the target view by the
   rotation homography ``K_t R K_s^-1`` (no depth), uncovered pixels filled as the warp fills them;
@@ -113,6 +113,7 @@ def _warp_setup(scene: SceneLog, config: WarpConfig | None) -> tuple[FrameFn, St
     sw = Stopwatch()
     with sw:
         warp = WarpRenderer(scene, config)
+        warp.exposure()  # the source-exposure solve, lazy otherwise: set-up, not the first frame
 
     def frame_fn(views: list[tuple[CameraSpec, F64]], t: int) -> list[np.ndarray]:
         return [warp(cam.channel, cam, T, t) for cam, T in views]
