@@ -57,5 +57,5 @@ def test_cli_rejects_unknown_factor_and_renders_a_saved_result(tmp_path, capsys)
     assert cli_main(["bench", "ablation", "--from-json", str(tmp_path / "r.json"), "--markdown",
                      str(tmp_path / "t.md"), "--json"]) == 0
     md = (tmp_path / "t.md").read_text()
-    assert "| easy | 25.00 | 30.00 | 0.900 | 0.950 | 0.80 | 3 (1) |" in md
+    assert "| easy | 25.00 | – | 30.00 | 0.900 | 0.950 | 0.80 | 3 (1) |" in md  # no gauge PSNR in that JSON
     assert "| hard | 1.50 | 0.70 | 3.0-4.5 |" in md

@@ -25,6 +25,8 @@ from pathlib import Path
 import numpy as np
 
 ROW_EASY = "easy"
+# raw PSNR, PSNR after one per-channel gain per log (the exposure gauge, nuav2.evaluate.against_world), SSIM
+SCORE_KEYS = ("psnr_db", "psnr_gauge_db", "ssim")
 
 
 @dataclass(frozen=True)
@@ -73,6 +75,8 @@ def _score(dataroot: Path, version: str, world, vector_map) -> tuple[dict, list]
     images = key_camera_images(dataroot, version, log_offsets(dataroot, version))
     s = score_against_world(images, world, vector_map=vector_map).summary()
     return {"psnr_db": {r: s["psnr_db"][r] for r in ("whole", "ground")},
+            "psnr_gauge_db": {r: s["psnr_gauge_db"][r] for r in ("whole", "ground")},
+            "gauge_log_gain": s["gauge_log_gain"],
             "ssim": {r: s["ssim"][r] for r in ("whole", "ground")},
             "paint_median_px": s["paint_median_px"], "paint_median_px_truth": s.get("paint_median_px_truth"),
             "images": s["images"]}, images
@@ -111,8 +115,8 @@ def _delta(row: dict, easy: dict) -> dict:
         e = easy["modes"].get(mode, {})
         if m.get("status") != "ok" or e.get("status") != "ok":
             continue
-        d = {f"{k}_{r}": round(m[k][r] - e[k][r], 3) for k in ("psnr_db", "ssim") for r in ("whole", "ground")
-             if m[k][r] is not None and e[k][r] is not None}
+        d = {f"{k}_{r}": round(m[k][r] - e[k][r], 3) for k in SCORE_KEYS for r in ("whole", "ground")
+             if k in m and k in e and m[k][r] is not None and e[k][r] is not None}
         if m["paint_median_px"] is not None and e["paint_median_px"] is not None:
             d["paint_px"] = round(m["paint_median_px"] - e["paint_median_px"], 3)
         out[mode] = d
@@ -131,8 +135,8 @@ def _mean_rows(records: list[dict]) -> dict:
         ok = [r["modes"][mode] for r in records if r["modes"].get(mode, {}).get("status") == "ok"]
         if not ok:
             continue
-        m = {f"{k}_{reg}": mean([x[k][reg] for x in ok])
-             for k in ("psnr_db", "ssim") for reg in ("whole", "ground")}
+        m = {f"{k}_{reg}": mean([x[k][reg] for x in ok if k in x])
+             for k in SCORE_KEYS for reg in ("whole", "ground")}
         m["paint_px"] = mean([x["paint_median_px"] for x in ok])
         m["convert_wall_s"] = mean([x["convert"]["wall_s"] for x in ok])
         m["convert_cpu_s"] = mean([x["convert"]["cpu_s"] for x in ok])
@@ -259,7 +263,8 @@ def preset_picture(path: Path, av2_root: Path, written: dict, rec: dict, height:
 def markdown_table(result: dict) -> str:
     """The docs' table: per row, each mode's scores and their change against easy; how it was measured."""
     modes = result["options"]["modes"]
-    head = ["row"] + [f"{m} {c}" for m in modes for c in ("PSNR dB (Δ)", "ground PSNR (Δ)", "SSIM (Δ)",
+    head = ["row"] + [f"{m} {c}" for m in modes for c in ("PSNR dB (Δ)", "gauge PSNR (Δ)", "ground PSNR (Δ)",
+                                                           "SSIM (Δ)",
                                                            "ground SSIM (Δ)", "paint px (Δ)",
                                                            "s wall (CPU)")]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
@@ -275,7 +280,9 @@ def markdown_table(result: dict) -> str:
         cells = [name]
         for mode in modes:
             m = row.get(mode, {})
-            cells += [cell(m, "psnr_db_whole", "psnr_db_whole"), cell(m, "psnr_db_ground", "psnr_db_ground"),
+            cells += [cell(m, "psnr_db_whole", "psnr_db_whole"),
+                      cell(m, "psnr_gauge_db_whole", "psnr_gauge_db_whole"),
+                      cell(m, "psnr_db_ground", "psnr_db_ground"),
                       cell(m, "ssim_whole", "ssim_whole"), cell(m, "ssim_ground", "ssim_ground"),
                       cell(m, "paint_px", "paint_px"),
                       f"{m['convert_wall_s']:.0f} ({m['convert_cpu_s']:.0f})" if m else "–"]
@@ -284,7 +291,9 @@ def markdown_table(result: dict) -> str:
     row_loads = [m["convert"]["load_1min"] for recs in result.get("per_seed", {}).values() for r in recs
                  for m in r["modes"].values() if "convert" in m]
     during = f", {min(row_loads):.1f}-{max(row_loads):.1f} during the conversions" if row_loads else ""
-    lines += ["", f"Measured with `{result['command']}`: {result['how']}. Load (1 min) "
+    lines += ["", f"Measured with `{result['command']}`: {result['how']}. Gauge PSNR: after one gain per "
+                  "colour channel for the whole log, fitted to the truth (the reference exposure's offset "
+                  "from the world's unit exposure, which no image reveals). Load (1 min) "
                   f"{load[0]:.1f} at the start, {load[1]:.1f} at the end{during}, on "
                   f"{result['machine_start']['cpu_count']} cores."]
     table = "\n".join(lines) + "\n"

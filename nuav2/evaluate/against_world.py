@@ -60,6 +60,9 @@ class RegionScores:
     values: dict[str, dict[str, dict[str, list[float]]]] = field(default_factory=dict)
     paint: list[np.ndarray] = field(default_factory=list)
     paint_truth: list[np.ndarray] = field(default_factory=list)
+    # per camera and region, per image: (4, 3) sums over the region's pixels of t^2, t*w, w^2, 1 per
+    # colour channel (t truth, w written): enough to score the image after any per-channel gain
+    gauge_sums: dict[str, dict[str, list[np.ndarray]]] = field(default_factory=dict)
 
     @staticmethod
     def for_map(vector_map: VectorMap | None) -> RegionScores:
@@ -76,8 +79,17 @@ class RegionScores:
     def add(self, camera: CameraSpec, city_T_cam: F64, img: np.ndarray, truth: np.ndarray, labels: np.ndarray,
             *, with_paint_floor: bool = False) -> dict:
         """Score one uint8 image against the truth (and its labels); returns the per-region metrics."""
-        got = region_metrics(img, truth, world_region_masks(labels), data_range=255.0)
+        masks = world_region_masks(labels)
+        got = region_metrics(img, truth, masks, data_range=255.0)
         cam = self.values.setdefault(camera.channel, {})
+        sums = self.gauge_sums.setdefault(camera.channel, {})
+        t, w = truth.astype(np.float64), img.astype(np.float64)
+        for region, m in got.items():
+            if m is not None:
+                sel_t, sel_w = t[masks[region]], w[masks[region]]
+                sums.setdefault(region, []).append(np.stack([(sel_t * sel_t).sum(0), (sel_t * sel_w).sum(0),
+                                                             (sel_w * sel_w).sum(0),
+                                                             np.full(3, float(len(sel_t)))]))
         for region, m in got.items():
             if m is not None:
                 r = cam.setdefault(region, {"psnr_db": [], "ssim": []})
@@ -93,6 +105,27 @@ class RegionScores:
     def channels(self) -> list[str]:
         return list(self.values)
 
+    def gauge_gain(self) -> np.ndarray:
+        """(3,) the per-channel gain on the written images that best fits the truth over every scored
+        image's whole region (1 where nothing was scored)."""
+        parts = [s for regions in self.gauge_sums.values() for s in regions.get("whole", [])]
+        if not parts:
+            return np.ones(3)
+        tot = np.sum(parts, axis=0)
+        return np.where(tot[2] > 0, tot[1] / np.maximum(tot[2], 1e-12), 1.0)
+
+    def _gauge_psnr(self, gain: np.ndarray) -> dict[str, dict[str, float]]:
+        """{camera: {region: mean PSNR dB of the images after ``gain``}} from the stored sums."""
+        out: dict[str, dict[str, float]] = {}
+        for ch, regions in self.gauge_sums.items():
+            for region, parts in regions.items():
+                psnrs = []
+                for tt, tw, ww, n in parts:
+                    mse = float(np.sum(tt - 2 * gain * tw + gain**2 * ww) / max(np.sum(n), 1.0))
+                    psnrs.append(10.0 * np.log10(255.0**2 / max(mse, 255.0**2 * 1e-10)))
+                out.setdefault(ch, {})[region] = _mean(psnrs)
+        return out
+
     def summary(self) -> dict:
         """Means per camera and region, then over cameras (each camera weighs the same); paint medians."""
         per_camera = {ch: {region: {"psnr_db": _mean(v["psnr_db"]), "ssim": _mean(v["ssim"]),
@@ -102,6 +135,11 @@ class RegionScores:
         for metric in ("psnr_db", "ssim"):
             out[metric] = {region: _mean([c[region][metric] for c in per_camera.values() if region in c])
                            for region in REGIONS}
+        gain = self.gauge_gain()
+        gauge = self._gauge_psnr(gain)
+        out["psnr_gauge_db"] = {r: _mean([c[r] for c in gauge.values() if c.get(r) is not None])
+                                for r in REGIONS}
+        out["gauge_log_gain"] = [round(float(x), 4) for x in np.log(np.maximum(gain, 1e-12))]
         out["paint_median_px"], out["paint_points"] = _median(self.paint)
         if self.paint_truth:
             out["paint_median_px_truth"], out["paint_points_truth"] = _median(self.paint_truth)

@@ -1,6 +1,7 @@
 """Source images at one reference exposure: the log's per-image gains and per-camera vignetting solved
 from background seeds seen by several images (:mod:`nuav2.exposure`), set on the views before
-anything reads their colours (seed colours, sky masks and texture, training targets)."""
+anything reads their colours (seed colours, sky masks and texture, training targets). Pixels a
+moving actor's box covers at that time are left out: the actor hides the seeds behind it."""
 
 from __future__ import annotations
 
@@ -8,14 +9,26 @@ import numpy as np
 
 from nuav2.exposure import ExposureConfig, ExposureModel, Observations, observe, solve_exposure
 from nuav2.geometry import F64, T_inverse
+from nuav2.splat.scene_model import TrackPoses
 from nuav2.splat.views import SourceView
+from nuav2.warp.depth_proxy import free_of_boxes
+
+
+def free_pixels(view: SourceView, scene_T_city: F64, tracks: list[TrackPoses]) -> np.ndarray:
+    """The view's valid pixels that no present track's box covers."""
+    present = [t for t in tracks if t.present(view.timestamp_ns)]
+    if not present:
+        return view.valid
+    scene_T_box = np.stack([t.scene_T_box_at(view.timestamp_ns) for t in present])
+    size = np.stack([t.size_lwh for t in present])
+    return view.valid & free_of_boxes(view.cam, scene_T_city @ view.city_T_cam, scene_T_box, size)
 
 
 def solve_view_exposure(views: list[SourceView], points_scene: F64, scene_T_city: F64,
                         cfg: ExposureConfig | None = None, *, max_points: int = 30_000,
-                        seed: int = 0) -> ExposureModel:
+                        seed: int = 0, tracks: list[TrackPoses] = ()) -> ExposureModel:
     """Exposure model over ``views`` (indexed by ``SourceView.index``, cameras by channel name order)
-    from their raw colours at (a subsample of) static ``points_scene``."""
+    from their raw colours at (a subsample of) static ``points_scene``, off the ``tracks``' boxes."""
     cfg = cfg or ExposureConfig()
     rng = np.random.default_rng(seed)
     if len(points_scene) > max_points:
@@ -28,7 +41,7 @@ def solve_view_exposure(views: list[SourceView], points_scene: F64, scene_T_city
         camera_of_image[v.index] = channels.index(v.channel)
         cam_T_scene = T_inverse(scene_T_city @ v.city_T_cam)
         idx, rgb, rho2 = observe(points_scene, v.cam.K, v.cam.width, v.cam.height, cam_T_scene,
-                                 v.raw_image_u8(), v.valid, cfg, rng)
+                                 v.raw_image_u8(), free_pixels(v, scene_T_city, list(tracks)), cfg, rng)
         obs.add(v.index, idx, rgb, rho2)
     return solve_exposure(obs, camera_of_image, cfg)
 

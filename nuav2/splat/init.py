@@ -140,7 +140,8 @@ def initial_scene(scene: SceneLog, views: list[SourceView], cfg: InitConfig, *, 
     if cfg.exposure is not None:
         every = [*views, *other_views]
         exposure = solve_view_exposure(every, bg_pts, scene_T_city, cfg.exposure,
-                                       max_points=cfg.exposure_points, seed=seed)
+                                       max_points=cfg.exposure_points, seed=seed,
+                                       tracks=list(moving.values()))
         set_exposure(every, exposure)
     obj_pts: dict[str, F64] = {}
     for tid, pts in agg.objects.items():

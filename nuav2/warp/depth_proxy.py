@@ -236,6 +236,18 @@ def box_depth(camera: CameraSpec, city_T_cam: F64, city_T_box: F64, size_lwh: F6
     return depth, index
 
 
+def free_of_boxes(camera: CameraSpec, frame_T_cam: F64, frame_T_box: F64, size_lwh: F64,
+                  margin_px: int = 2) -> np.ndarray:
+    """(H, W) bool: the pixels no box covers, box silhouettes dilated by ``margin_px`` for label error
+    (camera and boxes in any one frame). Static-point colour statistics skip the rest: a passing truck
+    hides what is behind it."""
+    depth, _ = box_depth(camera, frame_T_cam, frame_T_box, size_lwh, ProxyConfig())
+    covered = np.isfinite(depth).astype(np.uint8)
+    if margin_px > 0 and covered.any():
+        covered = cv2.dilate(covered, np.ones((2 * margin_px + 1,) * 2, np.uint8))
+    return covered == 0
+
+
 @dataclass(frozen=True)
 class ProxyGeometry:
     """What a depth proxy is built from, all in the city frame at one time."""

@@ -2,7 +2,9 @@
 
 Every source image of the log is read once at a reduced size (about ``work_width_px`` wide) and
 looks at static points: the ground surface on a grid along the ego path and the static LiDAR of
-every few sweeps (voxel-downsampled). Points seen by several images tie their exposures
+every few sweeps (voxel-downsampled), on the pixels no labelled actor covers at that time (a
+passing truck hides the static points behind it, and its colour would tie the image's exposure to
+the truck's paint). Points seen by several images tie their exposures
 together (:mod:`nuav2.exposure`); the solved per-image gains and per-camera vignetting then
 divide each source image as it is loaded, so blended seams and consecutive target images agree.
 """
@@ -15,11 +17,13 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from nuav2.exposure import ExposureConfig, ExposureModel, Observations, observe, solve_exposure
-from nuav2.geometry import F64, T_inverse
+from nuav2.exposure import ExposureConfig, ExposureModel, Observations, local_points, observe, solve_exposure
+from nuav2.geometry import F64, T_inverse, translation_T
 from nuav2.nuscenes_db.images import ImageSourceError
 from nuav2.rig import CameraSpec
 from nuav2.scene import CameraFrame, SceneLog
+from nuav2.warp.depth_proxy import free_of_boxes
+from nuav2.warp.tracks import BoxesAt
 
 WORK_WIDTH_PX = 320
 GROUND_SPACING_M = 0.5
@@ -73,13 +77,17 @@ def static_points(scene: SceneLog, sweep_points: Callable[[int], F64]) -> F64:
 
 
 def solve_source_exposure(scene: SceneLog, frames: dict[str, list[CameraFrame]], points_city: F64,
-                          cfg: ExposureConfig) -> tuple[ExposureModel, dict[tuple[str, int], int]]:
-    """Exposure model over every source image and the image index of each (channel, frame index)."""
+                          cfg: ExposureConfig, boxes_at: Callable[[int], BoxesAt] | None = None
+                          ) -> tuple[ExposureModel, dict[tuple[str, int], int]]:
+    """Exposure model over every source image and the image index of each (channel, frame index);
+    ``boxes_at(timestamp_ns)``: the labelled actors, whose pixels are left out."""
     channels = list(frames)
     index: dict[tuple[str, int], int] = {}
     cams: list[int] = []
     obs = Observations()
     rng = np.random.default_rng(0)
+    points_local, centre = local_points(points_city)
+    city_T_local = translation_T(*centre)
     for c, ch in enumerate(channels):
         cam = scene.rig.camera(ch)
         for j, f in enumerate(frames[ch]):
@@ -89,7 +97,12 @@ def solve_source_exposure(scene: SceneLog, frames: dict[str, list[CameraFrame]],
             img, small = read_reduced(Path(f.path), cam)
             city_T_cam = scene.city_T_ego_at(int(f.timestamp_ns)) @ cam.ego_T_cam
             valid = ~small.ego_mask() if small.ego_mask_polygons else None
-            idx, rgb, rho2 = observe(points_city, small.K, small.width, small.height, T_inverse(city_T_cam),
+            boxes = boxes_at(int(f.timestamp_ns)) if boxes_at is not None else None
+            if boxes is not None and len(boxes):
+                free = free_of_boxes(small, city_T_cam, boxes.city_T_box, boxes.size_lwh)
+                valid = free if valid is None else valid & free
+            idx, rgb, rho2 = observe(points_local, small.K, small.width, small.height,
+                                     T_inverse(city_T_cam) @ city_T_local,
                                      img, valid, cfg, rng)
             obs.add(k, idx, rgb, rho2)
     return solve_exposure(obs, np.array(cams, np.int64), cfg), index

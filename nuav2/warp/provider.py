@@ -172,7 +172,8 @@ class WarpRenderer:
             return None
         if self._exposure is None:
             points = static_points(self.scene, lambda i: self.cloud.sweep_points(i)[0])
-            self._exposure = solve_source_exposure(self.scene, self.frames, points, self.config.harmonise)
+            self._exposure = solve_source_exposure(self.scene, self.frames, points, self.config.harmonise,
+                                                   self.boxes_at)
         return self._exposure
 
     def _ego_valid(self, camera: CameraSpec) -> np.ndarray | None:
