@@ -10,7 +10,13 @@ import numpy as np
 import pytest
 from realism_perturb import copy_log, perturb_exposure
 
-from nuav2.exposure import ExposureModel, Observations, solve_exposure
+from nuav2.exposure import (
+    ExposureModel,
+    Observations,
+    frames_to_observe,
+    interpolate_log_gains,
+    solve_exposure,
+)
 from nuav2.rig import CameraSpec
 
 
@@ -62,6 +68,28 @@ def test_correct_undoes_a_known_factor():
     # the corner is darker than the centre by exp(-0.3 * 1)
     f = model.factor(0, cam.K, cam.width, cam.height)
     assert f[0, 0, 0] < f[24, 32, 0] * np.exp(-0.25)
+
+
+def test_frames_to_observe_keep_the_rate_and_both_ends():
+    t = np.arange(41) * 50_000_000 + 7  # 20 Hz for 2 s
+    picked = frames_to_observe(t, 5.0)
+    assert picked[0] == 0 and picked[-1] == 40
+    assert np.all(np.diff(t[picked][:-1]) == 200_000_000)  # every 4th frame
+    jittered = t + np.random.default_rng(0).integers(-3_000_000, 3_000_000, len(t))
+    assert len(frames_to_observe(jittered, 5.0)) == len(picked)  # a few ms of jitter changes nothing
+    np.testing.assert_array_equal(frames_to_observe(t, 0.0), np.arange(41))  # 0: every frame
+    np.testing.assert_array_equal(frames_to_observe(t[:2], 5.0), [0, 1])
+
+
+def test_gains_of_unobserved_images_are_linear_in_time_per_camera():
+    cams = np.array([0, 0, 0, 1, 1, 1, 1])
+    t = np.array([0, 50, 100, 0, 50, 100, 150]) * 1_000_000
+    observed = np.array([0, 2, 3, 6])  # each camera's ends
+    gains = np.array([[0.0] * 3, [0.2] * 3, [-0.3] * 3, [0.3] * 3])
+    solved = ExposureModel(gains, np.zeros((2, 2)), cams[observed])
+    full = interpolate_log_gains(solved, observed, t, cams)
+    np.testing.assert_allclose(full.log_gain[:, 0], [0.0, 0.1, 0.2, -0.3, -0.1, 0.1, 0.3])
+    assert full.camera_of_image.tolist() == cams.tolist() and full.vignetting.shape == (2, 2)
 
 
 # ---- render mode on a log with exposure differences ----------------------------------------------------

@@ -1,12 +1,13 @@
 """Warp mode's source images at one reference exposure: gains solved on their overlaps before blending.
 
-Every source image of the log is read once at a reduced size (about ``work_width_px`` wide) and
-looks at static points: the ground surface on a grid along the ego path and the static LiDAR of
-every few sweeps (voxel-downsampled), on the pixels no labelled actor covers at that time (a
-passing truck hides the static points behind it, and its colour would tie the image's exposure to
-the truck's paint). Points seen by several images tie their exposures
-together (:mod:`nuav2.exposure`); the solved per-image gains and per-camera vignetting then
-divide each source image as it is loaded, so blended seams and consecutive target images agree.
+Source images are read at a reduced size (about ``work_width_px`` wide) and look at static points:
+the ground surface on a grid along the ego path and the static LiDAR of every few sweeps
+(voxel-downsampled), on the pixels no labelled actor covers at that time (a passing truck hides the
+static points behind it, and its colour would tie the image's exposure to the truck's paint). Points
+seen by several images tie their exposures together (:mod:`nuav2.exposure`). Only ``observe_hz``
+images per camera and second are read; the others' gains are interpolated in time (auto-exposure
+moves smoothly over a few frames). The solved per-image gains and per-camera vignetting then divide
+each source image as it is loaded, so blended seams and consecutive target images agree.
 """
 
 from __future__ import annotations
@@ -17,7 +18,16 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from nuav2.exposure import ExposureConfig, ExposureModel, Observations, local_points, observe, solve_exposure
+from nuav2.exposure import (
+    ExposureConfig,
+    ExposureModel,
+    Observations,
+    frames_to_observe,
+    interpolate_log_gains,
+    local_points,
+    observe,
+    solve_exposure,
+)
 from nuav2.geometry import F64, T_inverse, translation_T
 from nuav2.nuscenes_db.images import ImageSourceError
 from nuav2.rig import CameraSpec
@@ -84,16 +94,22 @@ def solve_source_exposure(scene: SceneLog, frames: dict[str, list[CameraFrame]],
     channels = list(frames)
     index: dict[tuple[str, int], int] = {}
     cams: list[int] = []
+    stamps: list[int] = []
+    observed: list[int] = []
     obs = Observations()
     rng = np.random.default_rng(0)
     points_local, centre = local_points(points_city)
     city_T_local = translation_T(*centre)
     for c, ch in enumerate(channels):
         cam = scene.rig.camera(ch)
+        start = len(cams)
         for j, f in enumerate(frames[ch]):
-            k = len(cams)
-            index[(ch, j)] = k
+            index[(ch, j)] = len(cams)
             cams.append(c)
+            stamps.append(int(f.timestamp_ns))
+        chosen = frames_to_observe(np.array(stamps[start:], np.int64), cfg.observe_hz)
+        for j in chosen:
+            f = frames[ch][int(j)]
             img, small = read_reduced(Path(f.path), cam)
             city_T_cam = scene.city_T_ego_at(int(f.timestamp_ns)) @ cam.ego_T_cam
             valid = ~small.ego_mask() if small.ego_mask_polygons else None
@@ -104,5 +120,9 @@ def solve_source_exposure(scene: SceneLog, frames: dict[str, list[CameraFrame]],
             idx, rgb, rho2 = observe(points_local, small.K, small.width, small.height,
                                      T_inverse(city_T_cam) @ city_T_local,
                                      img, valid, cfg, rng)
-            obs.add(k, idx, rgb, rho2)
-    return solve_exposure(obs, np.array(cams, np.int64), cfg), index
+            obs.add(len(observed), idx, rgb, rho2)
+            observed.append(start + int(j))
+    cam_arr = np.array(cams, np.int64)
+    chosen_model = solve_exposure(obs, cam_arr[observed], cfg)
+    return interpolate_log_gains(chosen_model, np.array(observed, np.int64), np.array(stamps, np.int64),
+                                 cam_arr), index
