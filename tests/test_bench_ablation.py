@@ -14,10 +14,13 @@ from nuav2.synth import FACTORS
 
 def test_rows_are_easy_each_factor_alone_then_the_presets():
     rows = ablation_rows(AblationOptions())
-    assert [name for name, _ in rows] == ["easy", *(f"+{f}" for f in FACTORS), "medium", "hard"]
+    assert [name for name, _ in rows] == ["easy", *(f"+{f}" for f in FACTORS), "+exposure_gains", "medium",
+                                          "hard"]
     assert rows[0][1].factors == frozenset()
     for (name, cfg), f in zip(rows[1:], FACTORS):
-        assert cfg.factors == {f} and cfg.preset == "easy", name
+        assert cfg.factors == {f} and cfg.preset == "easy" and cfg.camera_noise, name
+    gains = dict(rows)["+exposure_gains"]
+    assert gains.factors == {"exposure"} and not gains.camera_noise
     assert rows[-1][1].factors == frozenset(FACTORS)
 
 

@@ -102,3 +102,14 @@ def test_markdown_tables_say_how_they_were_measured(run):
     assert "| rotation mosaic |" in text and "| mean colour |" in text and "| easy, 0.3 s | 3 |" in text
     warp_row = next(line for line in text.splitlines() if line.startswith("| warp |"))
     assert f"{run['modes']['warp']['quality']['psnr_db']['ground']:.2f}" in warp_row
+    # a second seed: cells become mean ± std over the seeds, timing rows name the seed
+    import copy
+
+    other = copy.deepcopy(run)
+    other["seed"] = run["seed"] + 1
+    ground = run["modes"]["warp"]["quality"]["psnr_db"]["ground"]
+    other["modes"]["warp"]["quality"]["psnr_db"]["ground"] = ground + 2
+    two = modes_markdown({**result, "runs": [run, other]})
+    warp_row = next(line for line in two.splitlines() if line.startswith("| warp |"))
+    assert f"{ground + 1:.2f} ± 1.00" in warp_row and "mean ± std over seeds" in two
+    assert f"| easy, 0.3 s, seed {other['seed']} |" in two

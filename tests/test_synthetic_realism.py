@@ -216,6 +216,11 @@ def test_camera_effects_vignette_white_balance_noise_and_drift():
     assert np.ptp(later) > 3.0  # exposure drifts over seconds
     again = CameraEffects(7, [c.channel for c in cams]).apply(cams[0], grey, 0.0, 1)
     np.testing.assert_array_equal(again, a0.astype(np.uint8))  # deterministic
+    quiet = CameraEffects(7, [c.channel for c in cams], noise=False).apply(cams[0], grey, 0.0, 1)
+    quiet = quiet.astype(float)
+    centre = (slice(h // 2 - 8, h // 2 + 8), slice(w // 2 - 8, w // 2 + 8), 1)
+    assert np.std(quiet[centre]) < 0.5  # camera_noise=False: the same gains without the noise
+    assert abs(quiet[centre].mean() - a0[centre].mean()) < 1.0
 
 
 def test_lidar_noise_dropouts_and_range():

@@ -24,7 +24,11 @@ from pathlib import Path
 
 import numpy as np
 
+from nuav2.synth.config import FACTORS
+
 ROW_EASY = "easy"
+EXPOSURE_GAINS = "exposure_gains"  # the exposure factor without its sensor noise and extra JPEG compression
+ABLATION_FACTORS = (*FACTORS, EXPOSURE_GAINS)
 # raw PSNR, PSNR after one per-channel gain per log (the exposure gauge, nuav2.evaluate.against_world), SSIM
 SCORE_KEYS = ("psnr_db", "psnr_gauge_db", "ssim")
 
@@ -49,13 +53,16 @@ class AblationOptions:
 
 
 def ablation_rows(opts: AblationOptions) -> list[tuple[str, object]]:
-    """(row name, SynthConfig): easy, easy + each factor, then the whole presets."""
-    from nuav2.synth import FACTORS, SynthConfig
+    """(row name, SynthConfig): easy, easy + each factor (``exposure_gains``: the exposure factor's drifting
+    gains, white balance and vignetting without its sensor noise), then the whole presets."""
+    from nuav2.synth import SynthConfig
 
     base = dict(seconds=opts.seconds, image_scale=opts.image_scale)
-    factors = FACTORS if opts.factors is None else opts.factors
+    factors = ABLATION_FACTORS if opts.factors is None else opts.factors
     rows = [(ROW_EASY, SynthConfig.for_preset("easy", **base))]
-    rows += [(f"+{f}", SynthConfig.for_preset("easy", **base, **{f: True})) for f in factors]
+    for f in factors:
+        switch = {"exposure": True, "camera_noise": False} if f == EXPOSURE_GAINS else {f: True}
+        rows.append((f"+{f}", SynthConfig.for_preset("easy", **base, **switch)))
     rows += [(p, SynthConfig.for_preset(p, **base)) for p in opts.presets]
     return rows
 

@@ -24,32 +24,54 @@ def _load(result: dict) -> str:
             f"{result['load_1_5_15_at_end']} at end, {result['machine_at_start']['cpu_count']} cores")
 
 
+def _over_seeds(values: list[float | None], spec: str) -> str:
+    """One value, or mean ± std (population) over seeds."""
+    vals = [v for v in values if v is not None]
+    if not vals:
+        return "–"
+    if len(vals) == 1:
+        return format(vals[0], spec)
+    mean = sum(vals) / len(vals)
+    std = (sum((v - mean) ** 2 for v in vals) / len(vals)) ** 0.5
+    return f"{mean:{spec}} ± {std:{spec}}"
+
+
+def _cells(by_preset: dict[str, list[dict]], get, spec: str = ".2f") -> str:
+    """One cell per preset, joined by " / ": ``get(run)`` over that preset's runs (seeds)."""
+    return " / ".join(_over_seeds([get(r) for r in runs], spec) for runs in by_preset.values())
+
+
 def modes_markdown(result: dict) -> str:
-    """Quality per candidate with the presets side by side (one table per log length), then timing per log."""
+    """Quality per candidate with the presets side by side (one table per log length; over several seeds a
+    cell is mean ± std), then timing per log."""
     runs = result["runs"]
     parts = [f"Measured with `{result['command']}` (candidates interleaved frame by frame in one process; "
              f"{_load(result)})."]
     for seconds in dict.fromkeys(r["seconds"] for r in runs):
         group = [r for r in runs if r["seconds"] == seconds]
-        presets = [r["preset"] for r in group]
+        presets = list(dict.fromkeys(r["preset"] for r in group))
+        by_preset = {p: [r for r in group if r["preset"] == p] for p in presets}
+        seeds = sorted({r["seed"] for r in group})
         first = group[0]
         tw, th = first["target"]["image_size"]
         sw, sh = first["source_image_size"]
+        over = (f", mean ± std over seeds {', '.join(map(str, seeds))}" if len(seeds) > 1
+                else f", seed {seeds[0]}")
         parts.append(f"Quality, {seconds:g} s log ({first['frames']} frames x {first['images_per_frame']} "
-                     f"target cameras at {tw}x{th}, source cameras {sw}x{sh}); each cell "
+                     f"target cameras at {tw}x{th}, source cameras {sw}x{sh}{over}); each cell "
                      f"{' / '.join(presets)}:")
         header = ["candidate", *[f"PSNR {g} dB" for g in REGIONS], "SSIM whole", "SSIM ground",
                   "lane paint px"]
         rows = []
         for m in first["modes"]:
-            qs = [r["modes"][m]["quality"] for r in group]
             rows.append([m.replace("_", " "),
-                         *[" / ".join(_f(q["psnr_db"][g]) for q in qs) for g in REGIONS],
-                         " / ".join(_f(q["ssim"]["whole"], ".3f") for q in qs),
-                         " / ".join(_f(q["ssim"]["ground"], ".3f") for q in qs),
-                         " / ".join(_f(q["paint_median_px"]) for q in qs)])
+                         *[_cells(by_preset, lambda r, m=m, g=g: r["modes"][m]["quality"]["psnr_db"][g])
+                           for g in REGIONS],
+                         _cells(by_preset, lambda r, m=m: r["modes"][m]["quality"]["ssim"]["whole"], ".3f"),
+                         _cells(by_preset, lambda r, m=m: r["modes"][m]["quality"]["ssim"]["ground"], ".3f"),
+                         _cells(by_preset, lambda r, m=m: r["modes"][m]["quality"]["paint_median_px"])])
         rows.append(["ground truth (paint floor)", *["–"] * 6,
-                     " / ".join(_f(r["paint_floor_median_px"]) for r in group)])
+                     _cells(by_preset, lambda r: r["paint_floor_median_px"])])
         parts.append(_table(header, rows))
     header = ["log", "frames", "rotation s/frame", "warp s/frame", "render s/frame",
               "render / warp per frame", "reconstruction s", "warp amortised s/frame",
@@ -64,7 +86,9 @@ def modes_markdown(result: dict) -> str:
         def wc(d: dict, a: str = "wall_s_mean", b: str = "cpu_s_mean") -> str:
             return f"{d[a]:.3f} ({d[b]:.3f})"
 
-        rows.append([f"{r['preset']}, {r['seconds']:g} s", str(r["frames"]), wc(m["rotation"]["per_frame"]),
+        seed = f", seed {r['seed']}" if len({x["seed"] for x in runs}) > 1 else ""
+        rows.append([f"{r['preset']}, {r['seconds']:g} s{seed}", str(r["frames"]),
+                     wc(m["rotation"]["per_frame"]),
                      wc(m["warp"]["per_frame"]), wc(m["render"]["per_frame"]),
                      f"{ratio['render_over_warp_per_frame_wall']:.1f}x "
                      f"({ratio['render_over_warp_per_frame_cpu']:.1f}x)",

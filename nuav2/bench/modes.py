@@ -154,7 +154,7 @@ def bench_one_log(preset: str, seconds: float, *, seed: int = 0, image_scale: fl
         overrides["image_scale"] = image_scale
     config = SynthConfig.for_preset(preset, **overrides)
     with tempfile.TemporaryDirectory(prefix="nuav2_bench_modes_") as tmp:
-        root = Path(work_dir) / f"{preset}_{seconds:g}s" if work_dir is not None else Path(tmp)
+        root = Path(work_dir) / f"{preset}_{seconds:g}s_seed{seed}" if work_dir is not None else Path(tmp)
         synth_sw = Stopwatch()
         with synth_sw:
             log_dir = generate_log(root, seed=seed, config=config, progress=progress)
@@ -225,12 +225,12 @@ def _ratios(modes: dict) -> dict:
     return out
 
 
-def bench_modes(presets: tuple[str, ...] = ("easy",), seconds: tuple[float, ...] = (2.0,), *,
-                command: str | None = None, **kw) -> dict:
-    """One :func:`bench_one_log` per (preset, log length), in this order, plus a side-by-side table."""
+def bench_modes(presets: tuple[str, ...] = ("easy",), seconds: tuple[float, ...] = (2.0,),
+                seeds: tuple[int, ...] = (0,), *, command: str | None = None, **kw) -> dict:
+    """One :func:`bench_one_log` per (log length, seed, preset), in this order, plus a side-by-side table."""
     start = machine()
-    runs = [bench_one_log(p, s, **kw) for s in seconds for p in presets]
-    return {"command": command, "interleaved": True, "machine_at_start": start,
+    runs = [bench_one_log(p, s, seed=seed, **kw) for s in seconds for seed in seeds for p in presets]
+    return {"command": command, "interleaved": True, "machine_at_start": start, "seeds": list(seeds),
             "load_1_5_15_at_end": machine()["load_1_5_15"], "runs": runs, "table": side_by_side(runs)}
 
 
@@ -240,7 +240,8 @@ def side_by_side(runs: list[dict]) -> list[dict]:
     for run in runs:
         for m, v in run["modes"].items():
             q = v["quality"]
-            row = {"preset": run["preset"], "seconds": run["seconds"], "frames": run["frames"], "mode": m,
+            row = {"preset": run["preset"], "seconds": run["seconds"], "seed": run["seed"],
+                   "frames": run["frames"], "mode": m,
                    **{f"psnr_{r}": q["psnr_db"][r] for r in q["psnr_db"]},
                    **{f"ssim_{r}": q["ssim"][r] for r in q["ssim"]},
                    "paint_px": q["paint_median_px"]}

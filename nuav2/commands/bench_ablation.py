@@ -19,7 +19,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "image and the ground, lane-paint offset, seconds; plus the synthetic world's speed per "
                     "preset (see docs/realism.md).")
     p.add_argument("--seeds", default="0,1", help="world seeds, comma-separated")
-    p.add_argument("--factors", default="all", help="factors to add one at a time (default: all)")
+    p.add_argument("--factors", default="all",
+                   help="factors to add one at a time (default: all; exposure_gains = exposure's gains "
+                        "without its sensor noise)")
     p.add_argument("--presets", default="medium,hard", help="whole presets to run too ('' for none)")
     p.add_argument("--seconds", type=float, default=2.0, help="log length in seconds")
     p.add_argument("--image-scale", type=float, default=0.125, help="AV2 camera resolution of the logs")
@@ -47,10 +49,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from nuav2.atomic import atomic_write_bytes, atomic_write_json
-    from nuav2.bench.ablation import AblationOptions, bench_ablation, markdown_table
+    from nuav2.bench.ablation import ABLATION_FACTORS, AblationOptions, bench_ablation, markdown_table
     from nuav2.bench.cli_args import command_line, parse_ints
     from nuav2.cli import UsageError
-    from nuav2.synth import FACTORS, PRESETS
+    from nuav2.synth import PRESETS
 
     before = None
     if args.before is not None:  # read first: a bad file fails before the long run
@@ -67,10 +69,11 @@ def run(args: argparse.Namespace) -> int:
             raise UsageError(f"--from-json {args.from_json}: not valid JSON ({e})") from e
     else:
         seeds = parse_ints(args.seeds, "--seeds")
-        factors = FACTORS if args.factors == "all" else tuple(f.strip() for f in args.factors.split(","))
+        factors = (ABLATION_FACTORS if args.factors == "all"
+                   else tuple(f.strip() for f in args.factors.split(",")))
         presets = tuple(p.strip() for p in args.presets.split(",") if p.strip())
         modes = tuple(m.strip() for m in args.modes.split(",") if m.strip())
-        for flag, got, known in (("--factors", factors, FACTORS), ("--presets", presets, PRESETS),
+        for flag, got, known in (("--factors", factors, ABLATION_FACTORS), ("--presets", presets, PRESETS),
                                  ("--modes", modes, ("warp", "render"))):
             bad = [x for x in got if x not in known]
             if bad:

@@ -19,7 +19,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--preset", default="easy", help="synthetic realism preset(s): easy,medium,hard or all")
     p.add_argument("--seconds", default="2", help="log length(s) in seconds, comma-separated (e.g. 2,15)")
-    p.add_argument("--seed", type=int, default=0, help="synthetic scene seed")
+    p.add_argument("--seeds", "--seed", dest="seeds", default="0",
+                   help="synthetic scene seed(s), comma-separated (tables give mean ± std over them)")
     p.add_argument("--image-scale", type=float, default=None,
                    help="AV2 camera resolution factor of the synthetic log (default: the preset's, 1/8)")
     p.add_argument("--rig", default="nuscenes", help="target rig name or JSON path")
@@ -39,12 +40,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from nuav2.atomic import atomic_write_json
-    from nuav2.bench.cli_args import command_line, parse_floats, parse_presets
+    from nuav2.bench.cli_args import command_line, parse_floats, parse_ints, parse_presets
     from nuav2.bench.modes import bench_modes
 
     presets = parse_presets(args.preset)  # a bad value: one line from nuav2.cli
     seconds = parse_floats(args.seconds, "--seconds")
-    result = bench_modes(presets, seconds, command=command_line(), seed=args.seed,
+    seeds = parse_ints(args.seeds, "--seeds")
+    result = bench_modes(presets, seconds, seeds, command=command_line(),
                          image_scale=args.image_scale, rig_name=args.rig, scale=args.scale,
                          frame_step=args.frame_step, with_render=not args.no_render,
                          recon_preset=args.recon_preset, work_dir=args.work_dir, progress=not args.quiet)

@@ -2,9 +2,10 @@
 
 With the ``exposure`` factor each ring camera has its own auto-exposure that chases a target
 brightness with a lag and drifts over seconds, its own white balance, lens vignetting, and
-sensor noise (read noise plus shot noise), and the JPEGs are more compressed. The ground-truth
-renderer (render.py) never applies any of this: the truth is unit exposure, neutral white
-balance, no vignetting, no noise.
+sensor noise (read noise plus shot noise), and the JPEGs are more compressed (``camera_noise=False``
+in the config keeps the gains and drops the noise and the extra compression, to tell their costs
+apart). The ground-truth renderer (render.py) never applies any of this: the truth is unit
+exposure, neutral white balance, no vignetting, no noise.
 """
 
 from __future__ import annotations
@@ -27,8 +28,9 @@ SHOT_NOISE = 0.12  # x sqrt(8-bit value)
 class CameraEffects:
     """Per-camera exposure state; :meth:`apply` must see each camera's images in time order."""
 
-    def __init__(self, seed: int, channels: list[str]):
+    def __init__(self, seed: int, channels: list[str], noise: bool = True):
         self.seed = seed
+        self.noise = noise  # read and shot noise (False: the exposure, white balance and vignetting alone)
         self.params = {}
         for i, ch in enumerate(sorted(channels)):
             rng = np.random.default_rng([seed, 200, i])
@@ -71,6 +73,8 @@ class CameraEffects:
             self._vignette[cam.channel] = vig
         out = linear * (gain * vig)[..., None] * p["wb"][None, None, :].astype(np.float32)
         out = 255.0 * np.clip(out, 0.0, 1.0) ** (1.0 / GAMMA)
+        if not self.noise:
+            return np.clip(np.rint(out), 0, 255).astype(np.uint8)
         rng = np.random.default_rng(
             [self.seed, 201, int(timestamp_ns) % (1 << 62), zlib.crc32(cam.channel.encode())]
         )

@@ -65,6 +65,7 @@ class SynthConfig:
     lidar_noise: bool | None = None  # range noise, grazing / dark-surface dropouts
     label_noise: bool | None = None  # per-track offsets, per-frame jitter, size errors, missed far objects
     n_cyclists: int = 2  # cyclists (with `content`)
+    camera_noise: bool = True  # with `exposure`: read/shot noise, JPEG quality 85 (False: the gains alone)
 
     def __post_init__(self) -> None:
         def bad(name: str, why: str) -> ValueError:
@@ -90,6 +91,8 @@ class SynthConfig:
             raise bad("city", f"must be an AV2 city code {[c.value for c in CityName]}")
         if not isinstance(self.jpeg_quality, int) or not 1 <= self.jpeg_quality <= 100:
             raise bad("jpeg_quality", "must be an integer in [1, 100]")
+        if not isinstance(self.camera_noise, bool):
+            raise bad("camera_noise", "must be a bool")
         if self.preset not in PRESETS:
             raise bad("preset", f"must be one of {PRESETS}")
         if self.layout is not None and self.layout not in LAYOUTS:

@@ -140,8 +140,9 @@ def write_log(world: SyntheticWorld, log_dir: Path, split: str = "train", progre
     _write_feather(log_dir / "city_SE3_egovehicle.feather", poses_table(world))
     write_map_dir(world, log_dir / "map")
     cams = [world.rig.camera(ch) for ch in world.camera_channels]
-    effects = CameraEffects(world.seed, world.camera_channels) if cfg.exposure else None
-    quality = min(cfg.jpeg_quality, EFFECTS_JPEG_QUALITY) if cfg.exposure else cfg.jpeg_quality
+    effects = CameraEffects(world.seed, world.camera_channels, cfg.camera_noise) if cfg.exposure else None
+    noisy = cfg.exposure and cfg.camera_noise
+    quality = min(cfg.jpeg_quality, EFFECTS_JPEG_QUALITY) if noisy else cfg.jpeg_quality
     rows = []
     t_start = time.perf_counter()
     n_points = 0
