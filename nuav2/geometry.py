@@ -155,42 +155,56 @@ def interpolate_poses(
     query_ns: ArrayLike,
     max_extrapolation_ns: int = 0,
 ) -> F64:
-    """Poses at arbitrary timestamps: slerp on rotation, lerp on translation.
+    """Poses at arbitrary timestamps: slerp on rotation, lerp on translation (see :class:`PoseTable`)."""
+    return PoseTable(timestamps_ns, poses, max_extrapolation_ns)(query_ns)
+
+
+class PoseTable:
+    """A checked pose table that interpolates: slerp on rotation, lerp on translation.
 
     ``timestamps_ns`` must be sorted and strictly increasing (duplicates are removed by the
     caller). Queries outside the table by up to ``max_extrapolation_ns`` clamp to the end
     pose; further out is an error, because silently holding a pose would shift geometry.
-    Interpolation weights are computed from int64 differences so ns precision is kept.
+    Interpolation weights are computed from int64 differences so ns precision is kept. The
+    table is checked and turned into quaternions once (a log's poses are queried thousands of times).
     """
-    ts = np.asarray(timestamps_ns, dtype=np.int64)
-    poses = np.asarray(poses, dtype=np.float64)
-    q = np.atleast_1d(np.asarray(query_ns, dtype=np.int64))
-    if ts.ndim != 1 or len(ts) == 0 or poses.shape != (len(ts), 4, 4):
-        raise ValueError("interpolate_poses needs N timestamps and (N, 4, 4) poses")
-    if len(ts) > 1 and np.any(np.diff(ts) <= 0):
-        raise ValueError("pose timestamps must be strictly increasing")
-    if not np.all(np.isfinite(poses)):
-        raise ValueError("pose table contains NaN/Inf")
-    lo_bad = q < ts[0] - max_extrapolation_ns
-    hi_bad = q > ts[-1] + max_extrapolation_ns
-    if np.any(lo_bad | hi_bad):
-        bad = q[lo_bad | hi_bad][0]
-        raise ValueError(
-            f"timestamp {bad} ns is outside the pose table [{ts[0]}, {ts[-1]}] "
-            f"by more than {max_extrapolation_ns} ns"
-        )
-    qc = np.clip(q, ts[0], ts[-1])
-    hi = np.clip(np.searchsorted(ts, qc, side="left"), 0, len(ts) - 1)
-    lo = np.clip(hi - 1, 0, len(ts) - 1)
-    exact = ts[hi] == qc
-    lo = np.where(exact, hi, lo)
-    span = (ts[hi] - ts[lo]).astype(np.float64)
-    alpha = np.where(span > 0, (qc - ts[lo]).astype(np.float64) / np.where(span > 0, span, 1.0), 0.0)
-    q_lo, t_lo = T_to_quat_trans(poses[lo])
-    q_hi, t_hi = T_to_quat_trans(poses[hi])
-    q_out = quat_slerp(q_lo, q_hi, alpha)
-    t_out = t_lo + alpha[:, None] * (t_hi - t_lo)
-    return T_from_quat_trans(q_out, t_out)
+
+    def __init__(self, timestamps_ns: ArrayLike, poses: ArrayLike, max_extrapolation_ns: int = 0):
+        ts = np.asarray(timestamps_ns, dtype=np.int64)
+        poses = np.asarray(poses, dtype=np.float64)
+        if ts.ndim != 1 or len(ts) == 0 or poses.shape != (len(ts), 4, 4):
+            raise ValueError("interpolate_poses needs N timestamps and (N, 4, 4) poses")
+        if len(ts) > 1 and np.any(np.diff(ts) <= 0):
+            raise ValueError("pose timestamps must be strictly increasing")
+        if not np.all(np.isfinite(poses)):
+            raise ValueError("pose table contains NaN/Inf")
+        self.timestamps_ns = ts
+        self.max_extrapolation_ns = int(max_extrapolation_ns)
+        self._quats, self._trans = T_to_quat_trans(poses)
+
+    def __call__(self, query_ns: ArrayLike) -> F64:
+        """(M, 4, 4) poses at the M query timestamps."""
+        ts, ext = self.timestamps_ns, self.max_extrapolation_ns
+        q = np.atleast_1d(np.asarray(query_ns, dtype=np.int64))
+        lo_bad = q < ts[0] - ext
+        hi_bad = q > ts[-1] + ext
+        if np.any(lo_bad | hi_bad):
+            bad = q[lo_bad | hi_bad][0]
+            raise ValueError(
+                f"timestamp {bad} ns is outside the pose table [{ts[0]}, {ts[-1]}] "
+                f"by more than {ext} ns"
+            )
+        qc = np.clip(q, ts[0], ts[-1])
+        hi = np.clip(np.searchsorted(ts, qc, side="left"), 0, len(ts) - 1)
+        lo = np.clip(hi - 1, 0, len(ts) - 1)
+        exact = ts[hi] == qc
+        lo = np.where(exact, hi, lo)
+        span = (ts[hi] - ts[lo]).astype(np.float64)
+        alpha = np.where(span > 0, (qc - ts[lo]).astype(np.float64) / np.where(span > 0, span, 1.0), 0.0)
+        q_out = quat_slerp(self._quats[lo], self._quats[hi], alpha)
+        t_lo, t_hi = self._trans[lo], self._trans[hi]
+        t_out = t_lo + alpha[:, None] * (t_hi - t_lo)
+        return T_from_quat_trans(q_out, t_out)
 
 
 def egoS_T_egoT_from_heights(source_origin_height_m: float, target_origin_height_m: float) -> F64:

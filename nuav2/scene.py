@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from nuav2.geometry import F64, interpolate_poses
+from nuav2.geometry import F64, PoseTable
 from nuav2.rig import Rig
 
 
@@ -163,8 +163,14 @@ class SceneLog:
 
     def city_T_ego_at(self, timestamp_ns) -> F64:
         """Ego pose(s) at arbitrary timestamps (slerp + lerp); (4,4) for a scalar, else (M,4,4)."""
-        out = interpolate_poses(self.pose_timestamps_ns, self.city_T_ego, timestamp_ns,
-                                self.max_pose_extrapolation_ns)
+        key = (self.pose_timestamps_ns, self.city_T_ego, self.max_pose_extrapolation_ns)
+        cached = self.__dict__.get("_pose_table")
+        same = (cached is not None and cached[0][0] is key[0] and cached[0][1] is key[1]
+                and cached[0][2] == key[2])
+        if not same:  # built once (checked, quaternions precomputed); rebuilt if the table is replaced
+            cached = (key, PoseTable(*key))
+            self.__dict__["_pose_table"] = cached
+        out = cached[1](timestamp_ns)
         return out[0] if np.ndim(timestamp_ns) == 0 else out
 
     def sweep(self, ref: LidarSweepRef) -> LidarPoints:

@@ -93,3 +93,20 @@ def test_estimate_skips_unknown_ground_and_refuses_none():
     no_raster.ground_height = None
     with pytest.raises(ValueError, match="no ground-height raster"):
         estimate_origin_height(no_raster)
+
+
+def test_scene_pose_table_is_built_once_and_rebuilt_when_replaced():
+    """SceneLog.city_T_ego_at checks and converts its poses once; a replaced table is not served stale."""
+    from nuav2.geometry import interpolate_poses
+
+    scene = _flat_scene(0.0, np.array([0.0, 1.0, 2.0, 3.0]))
+    q = np.array([0, 5, 12, 30], np.int64)
+    np.testing.assert_array_equal(scene.city_T_ego_at(q), interpolate_poses(scene.pose_timestamps_ns,
+                                                                            scene.city_T_ego, q))
+    table = scene.__dict__["_pose_table"][1]
+    scene.city_T_ego_at(7)
+    assert scene.__dict__["_pose_table"][1] is table  # reused
+    scene.city_T_ego = scene.city_T_ego + translation_T(0.0, 0.0, 10.0)[None] - np.eye(4)[None]
+    assert scene.city_T_ego_at(10)[2, 3] == pytest.approx(11.0)  # the new table, not the cached one
+    with pytest.raises(ValueError, match="outside the pose table"):
+        scene.city_T_ego_at(1000)
