@@ -50,6 +50,7 @@ class ExposureConfig:
     # an eighth of the images (15 s `hard` log: 55 -> 5 CPU s, 0.65 -> 0.8 % rms gain error,
     # `nuav2 bench exposure`).
     observe_hz: float = 2.5
+    min_observed_per_camera: int = 12  # ... but at least this many images per camera (short logs)
     cell_px: int = 2  # z-buffer cell of the visibility test
     depth_rel_tol: float = 0.03
     depth_abs_tol_m: float = 0.2
@@ -104,6 +105,15 @@ def _radius2_map(cx: float, cy: float, width: int, height: int) -> np.ndarray:
     K = np.array([[1.0, 0.0, cx], [0.0, 1.0, cy], [0.0, 0.0, 1.0]])
     uu, vv = np.meshgrid(np.arange(width, dtype=np.float64), np.arange(height, dtype=np.float64))
     out = radius2(uu, vv, K, width, height).astype(np.float32)
+    out.flags.writeable = False
+    return out
+
+
+@functools.lru_cache(maxsize=16)
+def _falloff_map(a1: float, a2: float, cx: float, cy: float, width: int, height: int) -> np.ndarray:
+    """(H, W) float32 radial fall-off ``exp(a1 rho^2 + a2 rho^4)`` of one camera (cached)."""
+    r2 = _radius2_map(cx, cy, width, height)
+    out = np.exp(a1 * r2 + a2 * r2 * r2).astype(np.float32)
     out.flags.writeable = False
     return out
 
@@ -172,9 +182,8 @@ class ExposureModel:
     def factor(self, image_index: int, K: F64, width: int, height: int) -> np.ndarray:
         """(H, W, 3) float32: the observed image is the reference-exposure image times this."""
         a1, a2 = self.vignetting[int(self.camera_of_image[int(image_index)])]
-        r2 = _radius2_map(float(K[0][2]), float(K[1][2]), int(width), int(height))
-        falloff = np.exp(a1 * r2 + a2 * r2 * r2)[..., None]  # float32, like the image it divides
-        return falloff * np.exp(self.log_gain[int(image_index)]).astype(np.float32)
+        falloff = _falloff_map(float(a1), float(a2), float(K[0][2]), float(K[1][2]), int(width), int(height))
+        return falloff[..., None] * np.exp(self.log_gain[int(image_index)]).astype(np.float32)
 
     def correct(self, image: np.ndarray, image_index: int, K: F64) -> np.ndarray:
         """The image at the reference exposure (same dtype; uint8 rounds and clips)."""
@@ -190,12 +199,16 @@ class ExposureModel:
                 "inliers": self.inliers}
 
 
-def frames_to_observe(timestamps_ns: np.ndarray, hz: float) -> np.ndarray:
-    """Indices of one camera's frames (sorted timestamps) at most ``hz`` apart in rate, first and last
-    always (so every other frame lies between two observed ones); every frame when ``hz`` <= 0."""
+def frames_to_observe(timestamps_ns: np.ndarray, hz: float, min_frames: int = 0) -> np.ndarray:
+    """Indices of one camera's frames (sorted timestamps) at most ``hz`` apart in rate, faster where that
+    gives fewer than ``min_frames`` (a short log needs its images to tie the cameras together), first and
+    last always (so every other frame lies between two observed ones); every frame when ``hz`` <= 0."""
     t = np.asarray(timestamps_ns, np.int64)
     if hz <= 0 or len(t) <= 2:
         return np.arange(len(t))
+    span_s = (int(t[-1]) - int(t[0])) * 1e-9
+    if min_frames > 1 and span_s > 0:
+        hz = max(hz, (min_frames - 1) / span_s)
     step_ns = int(round(1e9 / hz))
     picked, last = [0], int(t[0])
     for j in range(1, len(t) - 1):

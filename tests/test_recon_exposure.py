@@ -79,6 +79,9 @@ def test_frames_to_observe_keep_the_rate_and_both_ends():
     assert len(frames_to_observe(jittered, 5.0)) == len(picked)  # a few ms of jitter changes nothing
     np.testing.assert_array_equal(frames_to_observe(t, 0.0), np.arange(41))  # 0: every frame
     np.testing.assert_array_equal(frames_to_observe(t[:2], 5.0), [0, 1])
+    short = frames_to_observe(t[:13], 2.5, min_frames=12)  # 0.6 s: 2.5 Hz would read 3 images
+    assert len(short) >= 12 and short[0] == 0 and short[-1] == 12
+    assert len(frames_to_observe(t, 2.5, min_frames=12)) == 11  # 2 s: 5.5 Hz at most -> every 4th frame
 
 
 def test_gains_of_unobserved_images_are_linear_in_time_per_camera():

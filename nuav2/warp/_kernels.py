@@ -15,7 +15,7 @@ from numba import njit
 DIR_EPS = 1e-9
 MARCH_SAMPLES = 96
 MARCH_T0 = 1e-3
-BISECTIONS = 30
+BISECTIONS = 16
 
 
 @njit(cache=True, inline="always")

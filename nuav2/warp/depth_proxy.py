@@ -306,8 +306,10 @@ def actor_surface(camera: CameraSpec, city_T_cam: F64, geometry: ProxyGeometry, 
     lies behind. Boxes with fewer than ``ACTOR_MIN_POINTS`` points (far, occluded) are kept whole."""
     n_box = len(geometry.city_T_box)
     counts = np.bincount(geometry.actor_box, minlength=n_box)
-    d = lidar_depth(camera, city_T_cam, geometry.actor_points_city,
-                    np.full(len(geometry.actor_points_city), ACTOR_POINT_RADIUS_M), config)
+    shown = np.zeros(n_box, bool)
+    shown[np.unique(box_index[box_index >= 0])] = True
+    pts = geometry.actor_points_city[shown[geometry.actor_box]]  # only the boxes this view shows
+    d = lidar_depth(camera, city_T_cam, pts, np.full(len(pts), ACTOR_POINT_RADIUS_M), config)
     seen = np.isfinite(d) & (d < behind)
     has_points = counts >= ACTOR_MIN_POINTS
     trust = np.zeros(box_index.shape, bool)
@@ -332,7 +334,7 @@ def render_depth_proxy(camera: CameraSpec, city_T_cam: F64, geometry: ProxyGeome
     bd, bi = box_depth(camera, city_T_cam, geometry.city_T_box, geometry.size_lwh, config)
     on_box = bd < depth
     if geometry.actor_points_city is not None and len(geometry.actor_points_city) and on_box.any():
-        on_box &= actor_surface(camera, city_T_cam, geometry, bi, depth, config)
+        on_box &= actor_surface(camera, city_T_cam, geometry, np.where(on_box, bi, NO_BOX), depth, config)
     depth = np.where(on_box, bd, depth)
     index = np.where(on_box, bi, NO_BOX).astype(np.int32)
     return DepthProxy(camera, city_T_cam, depth, index)

@@ -107,7 +107,8 @@ def solve_source_exposure(scene: SceneLog, frames: dict[str, list[CameraFrame]],
             index[(ch, j)] = len(cams)
             cams.append(c)
             stamps.append(int(f.timestamp_ns))
-        chosen = frames_to_observe(np.array(stamps[start:], np.int64), cfg.observe_hz)
+        chosen = frames_to_observe(np.array(stamps[start:], np.int64), cfg.observe_hz,
+                                   cfg.min_observed_per_camera)
         for j in chosen:
             f = frames[ch][int(j)]
             img, small = read_reduced(Path(f.path), cam)
