@@ -39,13 +39,13 @@ def resolve_device(name: str, knob: str = "ReconConfig.device") -> torch.device:
     ok, why = gsplat_available()
     if name == "auto":
         return torch.device("cuda") if ok else torch.device("cpu")
+    asked = f"{knob} {name}" if knob.startswith("--") else f"{knob}={name!r}"
     if not ok:
-        raise DeviceUnavailable(f"{knob}={name!r} needs a CUDA GPU and the gsplat package: {why}; "
-                                f"use 'auto' or 'cpu' to train on the CPU")
+        raise DeviceUnavailable(f"{asked} needs a CUDA GPU and the gsplat package: {why}; "
+                                f"use auto or cpu to train on the CPU")
     dev = torch.device(name)
     if dev.index is not None and dev.index >= torch.cuda.device_count():
-        seen = torch.cuda.device_count()
-        raise DeviceUnavailable(f"{knob}={name!r}: this process sees {seen} CUDA device(s)")
+        raise DeviceUnavailable(f"{asked}: this process sees {torch.cuda.device_count()} CUDA device(s)")
     return dev
 
 
