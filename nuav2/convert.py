@@ -51,6 +51,9 @@ class ConvertOptions:
     scale: float = 1.0  # warp / render: target resolution factor
     recon_preset: str = "default"  # render: reconstruction budget preset
     min_confidence: float = 0.0  # render: drop sample times where a camera's confidence is below
+    # render: where the reconstruction trains and renders (auto | cpu | cuda, nuav2.splat.device). Not part of
+    # the fingerprint: devices differ in float rounding only; each log's report entry names the device used.
+    device: str = "auto"
     # Where the logs run (not part of the fingerprint: every executor writes the same shards).
     executor: str = "local"  # "local" processes or "ray" tasks
     ray_address: str | None = None  # None: RAY_ADDRESS, else a local Ray instance of `workers` slots
@@ -80,6 +83,7 @@ class ConvertOptions:
                 ReconConfig.preset(self.recon_preset)
             except ValueError as e:
                 raise ConvertError(f"--recon-preset: {e}") from e
+            self._check_device()
         if self.mode != "native":
             if not self.scale > 0:
                 raise ConvertError(f"--scale must be > 0, got {self.scale}")
@@ -110,6 +114,19 @@ class ConvertOptions:
             if not ray_available():
                 raise ConvertError(RAY_MISSING)
 
+    def _check_device(self) -> None:
+        """A bad ``--device`` is one line; ``cuda`` is checked here for local workers (this machine),
+        on Ray by the driver against the cluster's GPUs and by each task on its node."""
+        from nuav2.splat.device import DEVICES, DeviceUnavailable, resolve_device
+
+        if self.device not in DEVICES:
+            raise ConvertError(f"--device must be one of {DEVICES}, got {self.device!r}")
+        if self.executor == "local" and self.device == "cuda":
+            try:
+                resolve_device(self.device, knob="--device")
+            except DeviceUnavailable as e:
+                raise ConvertError(str(e)) from None
+
     def _rig_key(self) -> str:
         """A rig named by path is identified by its content, so editing the spec redoes the shards."""
         p = Path(self.rig)
@@ -124,7 +141,9 @@ class ConvertOptions:
         if self.mode == "render":
             from nuav2.recon import ReconConfig
 
-            cfg = json.dumps(ReconConfig.preset(self.recon_preset).to_dict(), sort_keys=True, default=str)
+            recon = ReconConfig.preset(self.recon_preset).to_dict()
+            recon.pop("device")  # where it runs, like the executor (see ``device`` above)
+            cfg = json.dumps(recon, sort_keys=True, default=str)
             return hashlib.sha256(cfg.encode()).hexdigest()[:12]
         return None
 
@@ -213,7 +232,7 @@ def convert_one_log(log_dir: Path, dataroot: Path, options: ConvertOptions,
         out_rig, images = image_source_for(scene, options.mode, Path(dataroot), image_link=options.image_link,
                                            rig=options.rig, scale=options.scale,
                                            recon_preset=options.recon_preset,
-                                           min_confidence=options.min_confidence,
+                                           min_confidence=options.min_confidence, device=options.device,
                                            progress=options.show_progress and options.workers == 1)
         shard = write_log(scene, out_rig, images, Path(dataroot),
                           WriterOptions(keyframe_hz=options.keyframe_hz,
@@ -225,7 +244,8 @@ def convert_one_log(log_dir: Path, dataroot: Path, options: ConvertOptions,
             after_write(log_dir.name)
         sh.save_shard(sh.shard_dir(dataroot, options.version, log_dir.name), shard, options.fingerprint())
         n_images = sum(r["fileformat"] != "pcd" for r in shard.tables["sample_data"])
-        return {"log_id": log_dir.name, "log_dir": str(log_dir), "error": None, "images": n_images}
+        return {"log_id": log_dir.name, "log_dir": str(log_dir), "error": None, "images": n_images,
+                "device": getattr(images, "device", None)}
     except Exception as e:  # noqa: BLE001 - one bad log must not stop the others
         log.debug("log %s failed:\n%s", log_dir, traceback.format_exc())
         return {"log_id": log_dir.name, "log_dir": str(log_dir), "error": f"{type(e).__name__}: {e}"}

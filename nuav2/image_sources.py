@@ -60,12 +60,18 @@ class QualityRecordingImages:
     def fingerprint(self) -> str:
         return self.inner.fingerprint()
 
+    @property
+    def device(self) -> str | None:
+        """The torch device the inner source rendered on (render mode), else None."""
+        return getattr(self.inner, "device", None)
+
 
 def image_source_for(scene: SceneLog, mode: str, dataroot: Path, *, image_link: str = "copy",
                      rig: str = "nuscenes", scale: float = 1.0,
                      recon_preset: str = "default", min_confidence: float = 0.0,
-                     progress: bool = False) -> tuple[Rig, ImageSource]:
-    """Output rig and image source of one log for ``mode`` (``progress``: report reconstruction progress)."""
+                     progress: bool = False, device: str = "auto") -> tuple[Rig, ImageSource]:
+    """Output rig and image source of one log for ``mode`` (``progress``: report reconstruction progress;
+    ``device``: where render mode reconstructs and renders, :mod:`nuav2.splat.device`)."""
     if mode == "native":
         return output_rig_native(scene), NativeImages(image_link)
     out_rig = output_rig_target(rig, scale)
@@ -79,7 +85,7 @@ def image_source_for(scene: SceneLog, mode: str, dataroot: Path, *, image_link: 
         # Checkpoints beside the dataroot let a killed render-mode conversion resume training.
         ckpt = Path(dataroot) / ".recon" / scene.log_id
         source = render_image_source(scene, out_rig, preset=recon_preset, min_confidence=min_confidence,
-                                     checkpoint_dir=ckpt, progress=progress)
+                                     checkpoint_dir=ckpt, progress=progress, device=device)
         return out_rig, QualityRecordingImages(source, Path(dataroot))
     if mode == "truth":
         from nuav2.truth_images import truth_image_source

@@ -21,6 +21,7 @@ import torch
 
 from nuav2.scene import SceneLog
 from nuav2.splat.densify import DensifyConfig
+from nuav2.splat.device import check_device_name, device_label, resolve_device
 from nuav2.splat.init import InitConfig, SourceView, initial_scene, source_views
 from nuav2.splat.quality import QualityConfig, SourceCoverage
 from nuav2.splat.render_target import SplatImageSource, SplatRenderer
@@ -37,6 +38,10 @@ class ReconConfig:
     Training resolution: ``image_scale`` x the log's camera images when given, else scaled so the
     widest camera is ``train_width_px`` wide (256 px = the default synthetic log's own size,
     1/8 of a real AV2 ring camera), so one preset fits synthetic and real logs alike.
+
+    ``device``: where training and rendering run (:mod:`nuav2.splat.device`): ``auto`` = CUDA with
+    gsplat when both are usable, else the CPU kernels; ``cpu``; ``cuda`` (or ``cuda:N``), an error
+    where CUDA or gsplat is missing. Seeding always runs on the CPU (numpy).
     """
 
     image_scale: float | None = None
@@ -48,6 +53,7 @@ class ReconConfig:
     sh_degree: int = 0
     seed: int = 0
     threads: int = 2
+    device: str = "auto"
     init: InitConfig = field(default_factory=InitConfig)
     train: TrainConfig = field(default_factory=TrainConfig)
     quality: QualityConfig = field(default_factory=QualityConfig)
@@ -61,6 +67,7 @@ class ReconConfig:
             raise ValueError("ReconConfig.frame_stride must be >= 1 and holdout_every >= 0")
         if not 0 <= self.sh_degree <= 3:
             raise ValueError(f"ReconConfig.sh_degree must be in 0..3, got {self.sh_degree}")
+        check_device_name(self.device)
 
     @staticmethod
     def fast() -> ReconConfig:
@@ -132,9 +139,11 @@ def reconstruct(scene: SceneLog, config: ReconConfig | None = None, *, progress:
     """Reconstruct ``scene`` as Gaussians (background + moving objects + sky), deterministic by seed.
 
     With ``checkpoint_dir`` the trainer saves there (every ``train.checkpoint_every`` steps and
-    at the end); ``resume`` continues from the checkpoint found there.
+    at the end); ``resume`` continues from the checkpoint found there, whichever device wrote it.
+    The scene comes back on ``config.device`` (``splat.info["device"]`` names it).
     """
     cfg = config or ReconConfig()
+    device = resolve_device(cfg.device)  # before any work: an unusable device is one error up front
     torch.set_num_threads(cfg.threads)
     torch.manual_seed(cfg.seed)
     t0 = time.perf_counter()
@@ -155,7 +164,8 @@ def reconstruct(scene: SceneLog, config: ReconConfig | None = None, *, progress:
     train_cfg = replace(cfg.train, seed=cfg.seed, threads=cfg.threads)
     if init.budget is not None:  # the Gaussian budget follows the scene (nuav2.splat.budget)
         train_cfg = replace(train_cfg, densify=replace(train_cfg.densify, budget=init.budget))
-    trainer = Trainer(init.scene, scene, train_views, init.sky_masks, train_cfg, validation=validation)
+    trainer = Trainer(init.scene.to(device), scene, train_views, init.sky_masks, train_cfg,
+                      validation=validation)
     ckpt = Path(checkpoint_dir) if checkpoint_dir is not None else None
     if ckpt is not None:
         ckpt.mkdir(parents=True, exist_ok=True)
@@ -173,7 +183,7 @@ def reconstruct(scene: SceneLog, config: ReconConfig | None = None, *, progress:
         "heldout_views": [view_record(v) for v in held],
         "validation_views": [view_record(v) for v in validation],
         "exposure": init.exposure.to_dict() if init.exposure is not None else None,
-        "config": cfg.to_dict(),
+        "config": cfg.to_dict(), "device": device_label(device),
     })
     return splat
 
@@ -236,10 +246,15 @@ def render_provider(splat: SplatScene, *, min_confidence: float = 0.0, quality: 
 def render_image_source(scene: SceneLog, out_rig=None, *, preset: str = "default",
                         config: ReconConfig | None = None, min_confidence: float = 0.0,
                         quality: bool = True, progress: bool = False,
-                        checkpoint_dir: str | Path | None = None) -> SplatImageSource:
+                        checkpoint_dir: str | Path | None = None, device: str | None = None
+                        ) -> SplatImageSource:
     """Render mode's writer ``ImageSource`` for one log: reconstruct it (``config`` or ``preset``),
-    then render each output camera at each sample. ``out_rig`` is accepted for symmetry with the
-    warp source; the writer passes the output rig to ``shots``/``store`` itself."""
-    splat = reconstruct(scene, config or ReconConfig.preset(preset), progress=progress,
-                        checkpoint_dir=checkpoint_dir, resume=checkpoint_dir is not None)
+    then render each output camera at each sample, both on ``device`` (None: the config's). ``out_rig``
+    is accepted for symmetry with the warp source; the writer passes the output rig to ``shots``/``store``
+    itself."""
+    cfg = config or ReconConfig.preset(preset)
+    if device is not None:
+        cfg = replace(cfg, device=device)
+    splat = reconstruct(scene, cfg, progress=progress, checkpoint_dir=checkpoint_dir,
+                        resume=checkpoint_dir is not None)
     return render_provider(splat, min_confidence=min_confidence, quality=quality, progress=progress)

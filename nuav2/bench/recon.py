@@ -115,7 +115,7 @@ def heldout_psnr(splat: SplatScene, scene: SceneLog) -> dict | None:
     for view in views_from_records(records):
         img = load_image(view.path, view.cam.width, view.cam.height)
         with torch.no_grad():
-            out = splat.render(view.cam, view.city_T_cam, view.timestamp_ns).rgb.clamp(0, 1).numpy()
+            out = splat.render(view.cam, view.city_T_cam, view.timestamp_ns).rgb.clamp(0, 1).cpu().numpy()
         spec = masks.get(view.channel)
         valid = None
         if spec is not None and spec.ego_mask_polygons:

@@ -14,7 +14,8 @@ from nuav2.image_sources import MODES
 _TARGET_RIG_MODES = ("warp", "render", "truth")
 _MODE_FLAGS = {"rig": ("--rig", _TARGET_RIG_MODES), "scale": ("--scale", _TARGET_RIG_MODES),
                "recon_preset": ("--recon-preset", ("render",)),
-               "min_confidence": ("--min-confidence", ("render",))}
+               "min_confidence": ("--min-confidence", ("render",)),
+               "device": ("--device", ("render",))}
 
 
 def _options(args: argparse.Namespace):  # -> nuav2.convert.ConvertOptions (imported lazily)
@@ -90,6 +91,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "(default: 0)")
     p.add_argument("--recon-preset", default=None,
                    help="render: reconstruction budget preset (default: default; see docs/reconstruction.md)")
+    p.add_argument("--device", choices=["auto", "cpu", "cuda"], default=None,
+                   help="render: where the reconstruction trains and renders; auto (default): a CUDA GPU "
+                        "with gsplat when there is one (on Ray: the GPU the task was given), else the CPU")
     p.add_argument("--version", default="v1.0-nuav2", help="table directory name (default: %(default)s)")
     p.add_argument("--keyframe-hz", type=float, default=None,
                    help="sample rate; default every LiDAR sweep (10 Hz); 2 gives nuScenes-like samples")

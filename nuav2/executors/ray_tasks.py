@@ -23,7 +23,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from nuav2.executors.progress import BatchProgress
-from nuav2.executors.task import failure, run_one
+from nuav2.executors.task import failure, run_one, worker_name
 
 log = logging.getLogger(__name__)
 
@@ -141,10 +141,45 @@ def convert_log_task(log_dir: str, dataroot: str, options, token: str, fault: st
         where = f"node {ray.util.get_node_ip_address()} ({socket.gethostname()})"
         return {"log_id": Path(log_dir).name, "log_dir": log_dir, "error": None,
                 "storage_problem": f"{where}: {problem}"}
+    gpu_ids = ray.get_gpu_ids()
+    if options.mode == "render":
+        from nuav2.splat.device import DeviceUnavailable
+
+        try:
+            options = replace(options, device=task_device(options.device, gpu_ids))
+        except DeviceUnavailable as e:
+            result = failure(log_dir, f"DeviceUnavailable: {e}", options.mode, worker_name())
+            result["summary"].update(node=ray.util.get_node_ip_address(), gpus=[str(g) for g in gpu_ids])
+            return result
     result = run_one(log_dir, dataroot, options, fault)
     result["summary"]["node"] = ray.util.get_node_ip_address()
-    result["summary"]["gpus"] = [str(g) for g in ray.get_gpu_ids()]
+    result["summary"]["gpus"] = [str(g) for g in gpu_ids]
     return result
+
+
+def task_device(requested: str, gpu_ids: list, visible: str | None = None) -> str:
+    """The device a render task reconstructs on: the GPU Ray gave it, else the CPU.
+
+    Ray points CUDA_VISIBLE_DEVICES at the task's GPUs, so the first given GPU is ``cuda:<its
+    position there>`` (cuda:0); where Ray leaves the variable alone it is ``cuda:<id>``. A task given no
+    GPU never touches one (Ray does not hide the node's GPUs from it). ``auto`` falls back to the CPU
+    where gsplat is unusable; ``cuda`` then raises :class:`DeviceUnavailable` naming ``--device``."""
+    from nuav2.splat.device import DeviceUnavailable, resolve_device
+
+    if requested == "cpu" or (requested == "auto" and not gpu_ids):
+        return "cpu"
+    if not gpu_ids:
+        raise DeviceUnavailable(f"--device {requested}: this Ray task was given no GPU (--gpus-per-task 0, "
+                                f"or a cluster without GPUs)")
+    if requested == "auto" and resolve_device("auto").type != "cuda":
+        log.warning("render task given GPU %s but CUDA/gsplat is unusable here: training on the CPU", gpu_ids)
+        return "cpu"
+    first = str(gpu_ids[0])
+    visible = os.environ.get("CUDA_VISIBLE_DEVICES") if visible is None else visible
+    listed = [x.strip() for x in visible.split(",")] if visible else []
+    device = f"cuda:{listed.index(first) if first in listed else int(first)}"
+    resolve_device(device, knob="--device")  # CUDA and gsplat usable, the index seen here
+    return device
 
 
 def check_shared_storage(ray, dataroot: Path, token: str) -> None:
@@ -182,13 +217,20 @@ def check_shared_storage(ray, dataroot: Path, token: str) -> None:
 
 def task_resources(cluster: dict[str, float], options) -> dict:
     """Ray resources of one conversion task: CPUs and memory (options or per-mode defaults), and in
-    render mode one GPU when the cluster has GPUs (``gpus_per_task`` overrides, 0 forces CPU)."""
+    render mode one GPU when the cluster has GPUs and ``--device`` is not ``cpu`` (``gpus_per_task``
+    overrides, 0 forces CPU). ``--device cuda`` where no task can get a GPU is a ConvertError."""
+    from nuav2.convert import ConvertError
+
     cpus = options.cpus_per_task if options.cpus_per_task is not None else DEFAULT_CPUS[options.mode]
     mem_gb = (options.memory_per_task_gb if options.memory_per_task_gb is not None
               else DEFAULT_MEMORY_GB[options.mode])
+    device = options.device if options.mode == "render" else "cpu"
     gpus = options.gpus_per_task
     if gpus is None:
-        gpus = 1.0 if options.mode == "render" and cluster.get("GPU", 0) >= 1 else 0.0
+        gpus = 1.0 if device != "cpu" and cluster.get("GPU", 0) >= 1 else 0.0
+    if device == "cuda" and not 0 < gpus <= cluster.get("GPU", 0):
+        raise ConvertError(f"--device cuda: render tasks need a GPU each, but the Ray cluster has "
+                           f"{cluster.get('GPU', 0):g} GPU(s) and --gpus-per-task is {gpus:g}")
     res = {"num_cpus": float(cpus), "num_gpus": float(gpus)}
     if mem_gb > 0:
         res["memory"] = int(mem_gb * 2**30)

@@ -71,6 +71,9 @@ def run_one(log_dir: str | Path, dataroot: str | Path, options, fault: str | Non
     result["summary"] = {"seconds": round(time.perf_counter() - t0, 3),
                          "cpu_seconds": round(time.process_time() - c0, 3), "images": result.pop("images", 0),
                          "mode": options.mode, "worker": worker_name(), "peak_rss_mb": peak_rss_mb()}
+    device = result.pop("device", None)
+    if device is not None:  # render mode: where it reconstructed and rendered (cpu, cuda:N)
+        result["summary"]["device"] = device
     return result
 
 

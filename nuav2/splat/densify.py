@@ -67,10 +67,10 @@ class DensifyStrategy:
     def active(self, step: int) -> bool:
         return step < self.stop
 
-    def _stats_for(self, name: str, n: int) -> _Stats:
+    def _stats_for(self, name: str, n: int, device: torch.device) -> _Stats:
         st = self.stats.get(name)
         if st is None or len(st.grad) != n:
-            st = _Stats(torch.zeros(n), torch.zeros(n))
+            st = _Stats(torch.zeros(n, device=device), torch.zeros(n, device=device))
             self.stats[name] = st
         return st
 
@@ -80,7 +80,7 @@ class DensifyStrategy:
         g = grad_px.detach().clone()
         g[:, 0] *= width / 2.0
         g[:, 1] *= height / 2.0
-        st = self._stats_for(name, len(g))
+        st = self._stats_for(name, len(g), g.device)
         norm = torch.nan_to_num(g.norm(dim=-1), nan=0.0, posinf=0.0)
         st.grad += torch.where(visible, norm, torch.zeros_like(norm))
         st.count += visible.float()
@@ -100,14 +100,15 @@ class DensifyStrategy:
             sets = self._densify(sets, optimizer, boxes or {})
         if self.reset_due(step):
             for name, g in sets.items():
-                new_logit = torch.minimum(g.opacity_logits.detach(), inverse_sigmoid(self.cfg.reset_opacity))
+                cap = inverse_sigmoid(self.cfg.reset_opacity).to(g.opacity_logits.device)
+                new_logit = torch.minimum(g.opacity_logits.detach(), cap)
                 sets[name] = replace_param(optimizer, g, "opacity_logits", new_logit, reset_state=True)
         return sets
 
     def _grow_candidates(self, sets: dict[str, GaussianSet]) -> dict[str, torch.Tensor]:
         cand = {}
         for name, g in sets.items():
-            st = self._stats_for(name, len(g))
+            st = self._stats_for(name, len(g), g.means.device)
             mean = st.grad / st.count.clamp_min(1)
             ok = (st.count >= self.cfg.min_views) & (mean > self.cfg.grad_threshold)
             cand[name] = torch.where(ok, mean, torch.full_like(mean, -1.0))
@@ -125,7 +126,7 @@ class DensifyStrategy:
         scores = torch.cat([torch.where(prune[n], torch.full_like(cand[n], -1.0), cand[n]) for n in sets]) \
             if sets else torch.zeros(0)
         n_want = int((scores > 0).sum())
-        grow_all = torch.zeros(len(scores), dtype=torch.bool)
+        grow_all = torch.zeros(len(scores), dtype=torch.bool, device=scores.device)
         if n_want and room:
             k = min(n_want, room)
             grow_all[torch.topk(scores, k).indices] = True
@@ -144,7 +145,8 @@ class DensifyStrategy:
             rec["prune"] += int(prune[name].sum())
             extra = [x for x in (cl, new) if x is not None]
             out[name] = rebuild(optimizer, g, keep, extra)
-            self.stats[name] = _Stats(torch.zeros(len(out[name])), torch.zeros(len(out[name])))
+            self.stats.pop(name, None)
+            self._stats_for(name, len(out[name]), out[name].means.device)  # fresh, for the new rows
         rec["total"] = sum(len(g) for g in out.values())
         self.history.append(rec)
         return out
@@ -156,7 +158,8 @@ class DensifyStrategy:
         bad = (op < c.prune_opacity) | (scale > c.prune_scale_frac * self.extent)
         bad |= ~torch.isfinite(g.means.detach()).all(-1)
         if box_lwh is not None:
-            half = torch.as_tensor(np.asarray(box_lwh) / 2 * c.object_box_margin, dtype=g.means.dtype)
+            half = torch.as_tensor(np.asarray(box_lwh) / 2 * c.object_box_margin, dtype=g.means.dtype,
+                                   device=g.means.device)
             bad |= (g.means.detach().abs() > half).any(-1)
         return bad
 
@@ -172,7 +175,9 @@ def _split_rows(g: GaussianSet, rows: torch.Tensor, n_split: int = 2) -> Gaussia
                      2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1).reshape(-1, 3, 3)
     parts = []
     for _ in range(n_split):
-        offs = torch.randn_like(scales) * scales
+        # drawn by the CPU generator whatever the device: the same samples everywhere, and the
+        # checkpoint's CPU RNG state is all a resumed run needs
+        offs = torch.randn(scales.shape, dtype=scales.dtype).to(scales.device) * scales
         parts.append(sub.replace(means=sub.means + torch.einsum("nij,nj->ni", R, offs),
                                  log_scales=sub.log_scales - math.log(1.6)))
     out = parts[0]
@@ -206,7 +211,7 @@ def replace_param(optimizer: torch.optim.Optimizer, g: GaussianSet, name: str, v
 
 def _grow_state(state: torch.Tensor, keep: torch.Tensor, n_new: int) -> torch.Tensor:
     kept = state[keep]
-    return torch.cat([kept, torch.zeros((n_new, *state.shape[1:]), dtype=state.dtype)])
+    return torch.cat([kept, torch.zeros((n_new, *state.shape[1:]), dtype=state.dtype, device=state.device)])
 
 
 def _swap_in_optimizer(optimizer: torch.optim.Optimizer, old: torch.Tensor, new: torch.Tensor, fn) -> None:

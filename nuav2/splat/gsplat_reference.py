@@ -246,3 +246,31 @@ def rasterize_gsplat_torch(means, quats, log_scales, opacity_logits, colors, wor
     if not batched:
         rgb, alpha, depth = rgb[0], alpha[0], depth[0]
     return rgb, alpha, depth, meta
+
+
+def rasterize_gsplat_reference(means, quats, log_scales, opacity_logits, colors, cams, width: int,
+                               height: int, near: float, far: float, background, sh_degree: int | None,
+                               radius_clip: float):
+    """The ``backend="gsplat-reference"`` of :func:`nuav2.splat.rasterize`: gsplat's torch path on the CPU
+    behind the same input and output conversion as the CUDA backend
+    (:func:`nuav2.splat.gsplat_backend.gsplat_inputs` / ``from_gsplat``), so a trainer can run on gsplat's
+    output conventions without a GPU.
+
+    Where gsplat's torch path differs from its CUDA kernels: it gives no ``means2d.absgrad`` (autograd's
+    ``.grad`` is the same quantity as the CUDA one), and its radii use 3.33 sigma without the opacity-aware
+    bound or the opacity cull, so Gaussians fainter than 1/255 and some near the image edge count as
+    visible there (with zero gradient). ``radius_clip`` is not supported."""
+    from gsplat.rendering import _rasterization
+
+    from nuav2.splat.gsplat_backend import from_gsplat, gsplat_inputs
+
+    if means.is_cuda:
+        raise ValueError("backend='gsplat-reference' runs on the CPU; use backend='gsplat' for CUDA tensors")
+    if radius_clip > 0:
+        raise ValueError("backend='gsplat-reference' does not support radius_clip > 0")
+    with _cpu_glue(None):
+        renders, alphas, meta = _rasterization(
+            **gsplat_inputs(means, quats, log_scales, opacity_logits, colors, cams), width=int(width),
+            height=int(height), near_plane=near, far_plane=far, eps2d=EPS2D, sh_degree=sh_degree,
+            render_mode="RGB+ED", rasterize_mode="classic", batch_per_iter=ONE_STEP)
+    return from_gsplat(renders, alphas, meta, background, cams, "gsplat-reference")

@@ -17,10 +17,11 @@ SSIM_C1 = 0.01**2
 SSIM_C2 = 0.03**2
 
 
-def _gauss_1d(size: int, sigma: float, dtype: torch.dtype) -> torch.Tensor:
+def _gauss_1d(size: int, sigma: float, dtype: torch.dtype, device: torch.device) -> torch.Tensor:
+    """The normalised window, computed in float64 on the CPU (the same on every device)."""
     x = torch.arange(size, dtype=torch.float64) - (size - 1) / 2
     g = torch.exp(-(x**2) / (2 * sigma**2))
-    return (g / g.sum()).to(dtype)
+    return (g / g.sum()).to(dtype).to(device)
 
 
 def ssim_map(x: torch.Tensor, y: torch.Tensor, window: int = 11, sigma: float = 1.5) -> torch.Tensor:
@@ -28,7 +29,7 @@ def ssim_map(x: torch.Tensor, y: torch.Tensor, window: int = 11, sigma: float = 
 
     The Gaussian window is separable: a row then a column pass equal the 2D filter exactly
     (zero padding included) at a fraction of the cost."""
-    g = _gauss_1d(window, sigma, x.dtype)
+    g = _gauss_1d(window, sigma, x.dtype, x.device)
     w_row = g.reshape(1, 1, 1, -1).expand(5 * 3, 1, 1, window).contiguous()
     w_col = g.reshape(1, 1, -1, 1).expand(5 * 3, 1, window, 1).contiguous()
     a = x.permute(2, 0, 1)

@@ -84,8 +84,8 @@ class SourceCoverage:
                 small = v.cam.scaled(cfg.source_depth_scale)
                 with torch.no_grad():
                     out = splat.render(small, v.city_T_cam, v.timestamp_ns, with_sky=False)
-                d = out.depth.numpy().astype(np.float32)
-                d[out.alpha.numpy() < cfg.alpha_solid] = np.inf  # seen through to the sky
+                d = out.depth.cpu().numpy().astype(np.float32)
+                d[out.alpha.cpu().numpy() < cfg.alpha_solid] = np.inf  # seen through to the sky
                 depths.append(d)
             else:
                 depths.append(None)

@@ -4,7 +4,9 @@ Shaped like ``gsplat.rasterization`` but with nuav2 conventions: poses are ``wor
 (OpenCV camera: x right, y down, z forward), quaternions (w, x, y, z), log-scales and opacity
 logits (the raw parameters a trainer optimises). Differentiable w.r.t. all Gaussian
 parameters. The CPU backend runs numba kernels (see docs/rasterizer.md); ``backend="auto"``
-uses gsplat instead when the tensors live on a CUDA device and gsplat is importable.
+uses gsplat instead when the tensors live on a CUDA device and gsplat is importable;
+``backend="gsplat-reference"`` runs gsplat's own PyTorch path on the CPU behind the same
+conversions as the CUDA backend (slow; for checking code that reads gsplat's outputs).
 """
 
 from __future__ import annotations
@@ -24,7 +26,7 @@ from nuav2.splat._inputs import (
 )
 from nuav2.splat.constants import ALPHA_FLOOR_DEPTH
 
-BACKENDS = ("auto", "cpu", "gsplat")
+BACKENDS = ("auto", "cpu", "gsplat", "gsplat-reference")
 _INT32_MAX = 2**31 - 1
 
 
@@ -76,6 +78,11 @@ def rasterize(
     check_image(width, height, near, far)
     cams = prepare_cameras(world_T_cam, K)
     background_rows(background, len(cams), means.dtype, means.device)      # shape and finiteness, up front
+    if backend == "gsplat-reference":
+        from nuav2.splat.gsplat_reference import rasterize_gsplat_reference
+
+        return rasterize_gsplat_reference(means, quats, log_scales, opacity_logits, colors, cams, int(width),
+                                          int(height), near, far, background, deg, radius_clip)
     if backend in ("auto", "gsplat"):
         from nuav2.splat import gsplat_backend
 

@@ -35,7 +35,7 @@ def target_city_T_cams(scene: SceneLog, target_rig: Rig, timestamp_ns: int) -> d
 
 def to_uint8(rgb: torch.Tensor) -> np.ndarray:
     """[0,1] float image -> uint8, rounded; NaN (never expected) becomes 0."""
-    arr = torch.nan_to_num(rgb.detach(), nan=0.0).clamp(0, 1).numpy()
+    arr = torch.nan_to_num(rgb.detach(), nan=0.0).clamp(0, 1).cpu().numpy()
     return (arr * 255.0 + 0.5).astype(np.uint8)
 
 
@@ -65,8 +65,9 @@ class SplatRenderer:
         if self.source_coverage is None:
             return None
         scene_T_cam = self.splat.scene_T_city @ np.asarray(city_T_cam, np.float64)
-        return image_quality(out.depth.numpy(), out.alpha.numpy(), camera, scene_T_cam, self.source_coverage,
-                             self.quality_cfg, nonrigid_boxes_at(self.splat, timestamp_ns))
+        boxes = nonrigid_boxes_at(self.splat, timestamp_ns)
+        return image_quality(out.depth.cpu().numpy(), out.alpha.cpu().numpy(), camera, scene_T_cam,
+                             self.source_coverage, self.quality_cfg, boxes)
 
     def __call__(self, channel: str, camera: CameraSpec, city_T_cam: F64, timestamp_ns: int) -> np.ndarray:
         out = self.render(camera, city_T_cam, timestamp_ns)
@@ -105,8 +106,8 @@ def scene_fingerprint(splat: SplatScene) -> str:
     h = hashlib.sha256()
     for g in [splat.background] + [o.gaussians for o in splat.objects]:
         for t in g.tensors().values():
-            h.update(t.detach().contiguous().numpy().tobytes())
-    h.update(splat.sky.texture.detach().numpy().tobytes())
+            h.update(t.detach().cpu().contiguous().numpy().tobytes())
+    h.update(splat.sky.texture.detach().cpu().numpy().tobytes())
     return h.hexdigest()[:16]
 
 
@@ -131,6 +132,11 @@ class SplatImageSource:
     @property
     def renderer(self) -> SplatRenderer:
         return self.render
+
+    @property
+    def device(self) -> str:
+        """Where the reconstruction trained and renders (``cpu`` or ``cuda:N``), for the convert report."""
+        return str(self.render.splat.info.get("device") or self.render.splat.device)
 
     def _images(self):
         from nuav2.nuscenes_db.images import RenderedImages

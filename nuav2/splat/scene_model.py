@@ -5,8 +5,8 @@
 - :class:`TrackPoses` / :class:`ObjectModel`: one Gaussian set per *moving* track, living in
   its box frame and placed at any time by the track's interpolated ``scene_T_box``; outside
   its annotated span the object is absent.
-- :class:`SkyModel`: a lat-long texture looked up by view direction with ``grid_sample`` (CPU
-  friendly), composited where the Gaussians leave the pixel transparent.
+- :class:`SkyModel` (:mod:`nuav2.splat.sky`): a lat-long texture looked up by view direction with
+  ``grid_sample``, composited where the Gaussians leave the pixel transparent.
 - :class:`SplatScene` renders all of them in one rasterizer call, in a *scene-local* float32
   frame: ``city_T_scene`` is a float64 translation to the first ego pose, so float32 never
   sees city-scale coordinates.
@@ -21,32 +21,25 @@ from __future__ import annotations
 import io
 import math
 from dataclasses import dataclass, field
-from functools import lru_cache
 from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
 import torch
-import torch.nn.functional as F
 
 from nuav2.atomic import atomic_write_bytes
 from nuav2.geometry import F64, T_inverse, interpolate_poses, rot_to_quat, translation_T
 from nuav2.rig import CameraSpec
+from nuav2.splat.sky import SkyModel, inverse_sigmoid, pixel_rays
 
 SH_C0 = 0.28209479177387814
 PARAM_NAMES = ("means", "quats", "log_scales", "opacity_logits", "sh")
 SCENE_FORMAT = "nuav2-splat-scene/1"
-SKY_ELEV_MIN = -math.radians(20.0)  # the sky texture spans this elevation up to the zenith
 
 
 def rgb_to_sh_dc(rgb01: torch.Tensor) -> torch.Tensor:
     """SH DC coefficient whose colour (C0 * c + 0.5) equals ``rgb01``."""
     return (rgb01 - 0.5) / SH_C0
-
-
-def inverse_sigmoid(p: torch.Tensor | float) -> torch.Tensor:
-    p = torch.as_tensor(p, dtype=torch.float32).clamp(1e-6, 1 - 1e-6)
-    return torch.log(p / (1 - p))
 
 
 def quat_mul_torch(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
@@ -138,18 +131,26 @@ class GaussianSet:
     def opacities(self) -> torch.Tensor:
         return torch.sigmoid(self.opacity_logits.detach())
 
+    def to(self, device: torch.device | str) -> GaussianSet:
+        """This set on ``device``: itself when already there, else detached copies (build the
+        optimizer afterwards: it must hold the tensors that are trained)."""
+        if self.means.device == torch.device(device):
+            return self
+        return GaussianSet(**{k: v.detach().to(device) for k, v in self.tensors().items()})
+
     def all_finite(self) -> bool:
         return all(bool(torch.isfinite(v).all()) for v in self.tensors().values())
 
     def state(self) -> dict[str, torch.Tensor]:
-        return {k: v.detach().clone() for k, v in self.tensors().items()}
+        """CPU copies of the parameters (saved files do not depend on the training device)."""
+        return {k: v.detach().cpu().clone() for k, v in self.tensors().items()}
 
     @staticmethod
     def from_state(state: dict[str, torch.Tensor]) -> GaussianSet:
         missing = [k for k in PARAM_NAMES if k not in state]
         if missing:
             raise ValueError(f"Gaussian state lacks {missing}")
-        return GaussianSet(**{k: state[k].detach().clone().float() for k in PARAM_NAMES})
+        return GaussianSet(**{k: state[k].detach().cpu().clone().float() for k in PARAM_NAMES})
 
 
 @dataclass
@@ -204,7 +205,7 @@ class TrackPoses:
         """Fold the learned corrections into ``scene_T_box`` (the saved scene needs no tensors)."""
         if self.pose_delta is None:
             return
-        d = self.pose_delta.detach().double().numpy()
+        d = self.pose_delta.detach().cpu().double().numpy()
         box_T_corr = np.zeros((len(d), 4, 4))
         c, s = np.cos(d[:, 3]), np.sin(d[:, 3])
         box_T_corr[:, 0, 0], box_T_corr[:, 0, 1], box_T_corr[:, 1, 0], box_T_corr[:, 1, 1] = c, -s, s, c
@@ -219,13 +220,13 @@ class TrackPoses:
              "presence_margin_ns": self.presence_margin_ns, "segment": self.segment,
              "present_from_ns": self.present_from_ns, "present_until_ns": self.present_until_ns}
         if self.pose_delta is not None:
-            d["pose_delta"] = self.pose_delta.detach().clone()
+            d["pose_delta"] = self.pose_delta.detach().cpu().clone()
         return d
 
     @staticmethod
     def from_state(d: dict) -> TrackPoses:
         delta = d.get("pose_delta")
-        delta = None if delta is None else delta.detach().clone().float()
+        delta = None if delta is None else delta.detach().cpu().clone().float()
         return TrackPoses(d["track_id"], d["category"], np.asarray(d["size_lwh"], np.float64),
                           np.asarray(d["timestamps_ns"], np.int64), np.asarray(d["scene_T_box"], np.float64),
                           int(d["presence_margin_ns"]), delta, d.get("segment"), d.get("present_from_ns"),
@@ -238,60 +239,6 @@ class ObjectModel:
 
     track: TrackPoses
     gaussians: GaussianSet
-
-
-class SkyModel(torch.nn.Module):
-    """Sky colour by view direction: a (3, H, W) lat-long texture of logits, sampled bilinearly.
-
-    Columns span azimuth -pi..pi (wrapping), rows the elevation from the zenith (row 0) down
-    to ``SKY_ELEV_MIN``; directions lower than that clamp to the bottom row. Directions are in
-    the scene frame, which is a pure translation of the city frame, so the sky never turns with
-    the camera (the MapGS "sky rotating the wrong way" bug is a rotation applied twice).
-    """
-
-    def __init__(self, height: int = 32, width: int = 128,
-                 init_rgb: tuple[float, float, float] = (0.7, 0.8, 0.9)):
-        super().__init__()
-        logits = inverse_sigmoid(torch.tensor(init_rgb, dtype=torch.float32))
-        self.texture = torch.nn.Parameter(logits[:, None, None].expand(3, height, width).clone())
-
-    @staticmethod
-    def direction_to_grid(dirs: torch.Tensor, width: int) -> torch.Tensor:
-        """grid_sample coordinates in [-1, 1] of unit-or-not directions (..., 3) on a W+1 wrapped texture."""
-        d = dirs / dirs.norm(dim=-1, keepdim=True).clamp_min(1e-12)
-        az = torch.atan2(d[..., 1], d[..., 0])  # -pi..pi
-        elev = torch.asin(d[..., 2].clamp(-1.0, 1.0)).clamp_min(SKY_ELEV_MIN)
-        # Texture columns 0..W-1 cover azimuth [-pi, pi) at column centres -pi + 2 pi j / W; the
-        # padded column W repeats column 0 (azimuth +pi). align_corners=True maps -1..1 to 0..W.
-        gx = (az + math.pi) / (2 * math.pi) * 2.0 - 1.0
-        gy = (math.pi / 2 - elev) / (math.pi / 2 - SKY_ELEV_MIN) * 2.0 - 1.0
-        return torch.stack([gx, gy], -1)
-
-    def forward(self, dirs: torch.Tensor) -> torch.Tensor:
-        """RGB in [0, 1] for directions (..., 3)."""
-        shape = dirs.shape[:-1]
-        tex = torch.cat([self.texture, self.texture[:, :, :1]], dim=2)  # wrap azimuth
-        grid = self.direction_to_grid(dirs.reshape(1, -1, 1, 3), self.texture.shape[2]).to(tex.dtype)
-        out = F.grid_sample(tex[None], grid, mode="bilinear", padding_mode="border", align_corners=True)
-        return torch.sigmoid(out[0, :, :, 0].T).reshape(*shape, 3)
-
-
-@lru_cache(maxsize=64)
-def _pixel_rays_cam(fx: float, fy: float, cx: float, cy: float, width: int, height: int) -> torch.Tensor:
-    """(H, W, 3) camera-frame rays through pixel centres (rig convention: centre of pixel u is u)."""
-    u = torch.arange(width, dtype=torch.float64)
-    v = torch.arange(height, dtype=torch.float64)
-    vv, uu = torch.meshgrid(v, u, indexing="ij")
-    return torch.stack([(uu - cx) / fx, (vv - cy) / fy, torch.ones_like(uu)], -1).float()
-
-
-def pixel_rays(cam: CameraSpec, scene_T_cam: F64) -> torch.Tensor:
-    """(H, W, 3) float32 ray directions in the scene frame (not normalised)."""
-    K = cam.K
-    rays = _pixel_rays_cam(float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]), cam.width,
-                           cam.height)
-    R = torch.as_tensor(np.asarray(scene_T_cam)[:3, :3], dtype=torch.float32)
-    return rays @ R.T
 
 
 def raster_K(K: F64) -> F64:
@@ -322,10 +269,10 @@ def frustum_cull(g: dict[str, torch.Tensor], cam: CameraSpec, scene_T_cam: F64, 
     with torch.no_grad():
         means = g["means"].detach()
         if len(means) == 0:
-            return torch.zeros(0, dtype=torch.long)
+            return torch.zeros(0, dtype=torch.long, device=means.device)
         cam_T_scene = T_inverse(scene_T_cam)
-        R = torch.as_tensor(cam_T_scene[:3, :3], dtype=means.dtype)
-        t = torch.as_tensor(cam_T_scene[:3, 3], dtype=means.dtype)
+        R = torch.as_tensor(cam_T_scene[:3, :3], dtype=means.dtype, device=means.device)
+        t = torch.as_tensor(cam_T_scene[:3, 3], dtype=means.dtype, device=means.device)
         p = means @ R.T + t
         r = 3.0 * torch.exp(g["log_scales"].detach().clamp(max=10.0)).max(-1).values
         K = cam.K
@@ -350,6 +297,7 @@ class SplatScene:
     far: float = 1000.0
     radius_clip: float = 0.0
     info: dict = field(default_factory=dict)
+    backend: str = "auto"  # the rasterizer's backend (nuav2.splat.rasterize); not saved with the scene
 
     @property
     def scene_T_city(self) -> F64:
@@ -358,6 +306,22 @@ class SplatScene:
     @property
     def sh_degree(self) -> int:
         return self.background.sh_degree
+
+    @property
+    def device(self) -> torch.device:
+        """Where the scene's tensors live (and so where it trains and renders)."""
+        return self.background.means.device
+
+    def to(self, device: torch.device | str) -> SplatScene:
+        """Move every tensor (Gaussians, learned box corrections, sky) to ``device``, in place;
+        returns the scene. Build optimizers afterwards."""
+        self.background = self.background.to(device)
+        for o in self.objects:
+            o.gaussians = o.gaussians.to(device)
+            if o.track.pose_delta is not None:
+                o.track.pose_delta = o.track.pose_delta.detach().to(device)
+        self.sky = self.sky.to(device)
+        return self
 
     def num_gaussians(self) -> int:
         return len(self.background) + sum(len(o.gaussians) for o in self.objects)
@@ -373,9 +337,10 @@ class SplatScene:
             if not obj.track.present(timestamp_ns) or len(obj.gaussians) == 0:
                 continue
             T = obj.track.scene_T_box_at(timestamp_ns)
-            R = torch.as_tensor(T[:3, :3], dtype=torch.float32)
-            t = torch.as_tensor(T[:3, 3], dtype=torch.float32)
-            q_box = torch.as_tensor(rot_to_quat(T[:3, :3]), dtype=torch.float32)
+            dev = obj.gaussians.means.device
+            R = torch.as_tensor(T[:3, :3], dtype=torch.float32, device=dev)
+            t = torch.as_tensor(T[:3, 3], dtype=torch.float32, device=dev)
+            q_box = torch.as_tensor(rot_to_quat(T[:3, :3]), dtype=torch.float32, device=dev)
             g = obj.gaussians
             means = g.means
             delta = obj.track.delta_at(timestamp_ns)
@@ -406,10 +371,11 @@ class SplatScene:
         g, slices = self.gather(timestamp_ns, objects)
         deg = self.sh_degree if sh_degree is None else min(sh_degree, self.sh_degree)
         index = frustum_cull(g, cam, scene_T_cam, self.near, self.far)
+        dev = self.device
         if len(index) == 0:
             h, w = cam.height, cam.width
-            alpha = torch.zeros(h, w)
-            out_rgb, out_depth, meta = torch.zeros(h, w, 3), torch.zeros(h, w), {}
+            alpha = torch.zeros(h, w, device=dev)
+            out_rgb, out_depth, meta = torch.zeros(h, w, 3, device=dev), torch.zeros(h, w, device=dev), {}
         else:
             sh = g["sh"][index, : (deg + 1) ** 2]
             if deg == 0:  # view-independent: plain RGB skips the per-Gaussian view directions
@@ -419,11 +385,11 @@ class SplatScene:
             out = rasterize(g["means"][index], g["quats"][index], g["log_scales"][index],
                             g["opacity_logits"][index], colors, scene_T_cam, raster_K(cam.K), cam.width,
                             cam.height, near=self.near, far=self.far, sh_degree=raster_deg,
-                            radius_clip=self.radius_clip)
+                            radius_clip=self.radius_clip, backend=self.backend)
             out_rgb, alpha, out_depth, meta = out.rgb, out.alpha, out.depth, out.meta
         rgb = out_rgb
         if with_sky:
-            sky = self.sky(pixel_rays(cam, scene_T_cam))
+            sky = self.sky(pixel_rays(cam, scene_T_cam, dev))
             rgb = out_rgb + (1.0 - alpha)[..., None] * sky
         return SceneRender(rgb, alpha, out_depth, meta, slices, index)
 
@@ -434,11 +400,12 @@ class SplatScene:
                 "background": self.background.state(),
                 "objects": [{"track": o.track.state(), "gaussians": o.gaussians.state()}
                             for o in self.objects],
-                "sky": self.sky.texture.detach().clone(), "near": self.near, "far": self.far,
+                "sky": self.sky.texture.detach().cpu().clone(), "near": self.near, "far": self.far,
                 "radius_clip": self.radius_clip, "info": dict(self.info)}
 
     @staticmethod
     def from_state(state: dict, src: str = "<state>") -> SplatScene:
+        """The scene of :meth:`state`, on the CPU (``.to(device)`` moves it)."""
         if not isinstance(state, dict) or state.get("format") != SCENE_FORMAT:
             raise ValueError(f"{src}: not a nuav2 splat scene (format must be {SCENE_FORMAT!r})")
         tex = state["sky"]
@@ -458,7 +425,8 @@ class SplatScene:
         atomic_write_bytes(Path(path), buf.getvalue())
 
     @staticmethod
-    def load(path: str | Path) -> SplatScene:
+    def load(path: str | Path, device: torch.device | str = "cpu") -> SplatScene:
+        """Read a scene written by :meth:`save` on any device, onto ``device``."""
         path = Path(path)
         if not path.is_file():
             raise FileNotFoundError(f"{path}: splat scene file not found")
@@ -466,7 +434,7 @@ class SplatScene:
             state = torch.load(path, map_location="cpu", weights_only=False)
         except Exception as e:  # noqa: BLE001 - any unpickling failure means a bad file
             raise ValueError(f"{path}: not a readable splat scene ({type(e).__name__}: {e})") from e
-        return SplatScene.from_state(state, str(path))
+        return SplatScene.from_state(state, str(path)).to(device)
 
 
 def scene_frame_for(city_T_ego_first: F64) -> F64:

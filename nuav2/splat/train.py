@@ -17,18 +17,18 @@ import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
-import cv2
 import numpy as np
 import torch
 
 from nuav2.atomic import atomic_write_bytes
-from nuav2.geometry import F64, T_inverse
 from nuav2.progress import progress_bar
 from nuav2.scene import SceneLog
 from nuav2.splat.densify import DensifyConfig, DensifyStrategy
+from nuav2.splat.device import to_cpu
 from nuav2.splat.losses import depth_loss, photometric_loss, psnr, sky_loss
 from nuav2.splat.scene_model import GaussianSet, SplatScene, TrackPoses
-from nuav2.splat.views import SourceView, project
+from nuav2.splat.train_views import ViewData, lidar_depth_samples
+from nuav2.splat.views import SourceView
 
 log = logging.getLogger(__name__)
 
@@ -78,66 +78,6 @@ class TrainConfig:
     min_iterations: int = 0
 
 
-@dataclass
-class ViewData:
-    """A training view's targets at the training resolution: image, valid mask, sky, LiDAR depth."""
-
-    view: SourceView
-    sky: np.ndarray  # (H, W) bool
-    depth_uvz: np.ndarray  # (M, 3) float32, rig pixel convention
-    _levels: dict = field(default_factory=dict, repr=False)
-
-    def at(self, level: float) -> tuple:
-        """(camera, image, valid, sky, depth samples) as tensors at a pyramid level."""
-        if level not in self._levels:
-            cam = self.view.cam.scaled(level) if level != 1.0 else self.view.cam
-            img = self.view.image_u8()
-            valid = self.view.valid
-            sky = self.sky
-            if level != 1.0:
-                size = (cam.width, cam.height)
-                img = cv2.resize(img, size, interpolation=cv2.INTER_AREA)
-                valid = cv2.resize(valid.astype(np.float32), size, interpolation=cv2.INTER_AREA) > 0.999
-                sky = cv2.resize(sky.astype(np.float32), size, interpolation=cv2.INTER_AREA) > 0.999
-            uvz = self.depth_uvz.copy()
-            sx, sy = cam.width / self.view.cam.width, cam.height / self.view.cam.height
-            uvz[:, 0] = (uvz[:, 0] + 0.5) * sx - 0.5
-            uvz[:, 1] = (uvz[:, 1] + 0.5) * sy - 0.5
-            self._levels[level] = (cam, torch.from_numpy(np.ascontiguousarray(img)), torch.from_numpy(valid),
-                                   torch.from_numpy(sky), torch.from_numpy(uvz))
-        cam, img, valid, sky, uvz = self._levels[level]
-        return cam, img.float() / 255.0, valid, sky, uvz
-
-
-def lidar_depth_samples(scene: SceneLog, view: SourceView, scene_T_city: F64, max_points: int = 20_000,
-                        max_depth_m: float = 150.0, sweep_cache: dict | None = None) -> np.ndarray:
-    """LiDAR z-depth in a view from the sweep nearest its timestamp: (M, 3) u, v, z float32.
-
-    ``sweep_cache`` (sweep timestamp -> scene-frame points) avoids re-reading a sweep that
-    several views share."""
-    if not scene.lidar_sweeps:
-        return np.zeros((0, 3), np.float32)
-    ts = scene.sweep_timestamps_ns
-    ref = scene.lidar_sweeps[int(np.argmin(np.abs(ts - view.timestamp_ns)))]
-    key = int(ref.timestamp_ns)
-    if sweep_cache is None or key not in sweep_cache:
-        scene_T_ego = scene_T_city @ scene.city_T_ego_at(key)
-        pts = scene.sweep(ref).xyz_ego @ scene_T_ego[:3, :3].T + scene_T_ego[:3, 3]
-        if sweep_cache is not None:
-            sweep_cache.clear()  # views come grouped by camera, sorted by time: keep one sweep
-            sweep_cache[key] = pts
-    else:
-        pts = sweep_cache[key]
-    cam_T_scene = T_inverse(scene_T_city @ view.city_T_cam)
-    proj = project(pts, view.cam, cam_T_scene, near=0.5)
-    ok = proj.z < max_depth_m
-    uvz = np.column_stack([proj.u[ok], proj.v[ok], proj.z[ok]]).astype(np.float32)
-    pv = np.clip(np.round(uvz[:, 1]).astype(int), 0, view.cam.height - 1)
-    pu = np.clip(np.round(uvz[:, 0]).astype(int), 0, view.cam.width - 1)
-    uvz = uvz[view.valid[pv, pu]]
-    return uvz[:max_points]
-
-
 def pose_prior(track: TrackPoses, lambda_size: float, lambda_smooth: float,
                base: tuple[torch.Tensor, torch.Tensor] | None = None) -> torch.Tensor:
     """Prior of a track's learned box-pose corrections: small (``lambda_size`` x mean squared correction)
@@ -155,10 +95,12 @@ def pose_prior(track: TrackPoses, lambda_size: float, lambda_smooth: float,
 
 
 def track_tensors(track: TrackPoses) -> tuple[torch.Tensor, torch.Tensor]:
-    """(scene_T_box (T, 4, 4), unwrapped heading (T,)) of a track as float32 tensors."""
+    """(scene_T_box (T, 4, 4), unwrapped heading (T,)) of a track as float32 tensors, on the device
+    of its learned corrections."""
+    dev = track.pose_delta.device if track.pose_delta is not None else torch.device("cpu")
     yaw = np.unwrap(np.arctan2(track.scene_T_box[:, 1, 0], track.scene_T_box[:, 0, 0]))
-    T = torch.as_tensor(track.scene_T_box, dtype=torch.float32)
-    return T, torch.as_tensor(yaw, dtype=torch.float32)
+    T = torch.as_tensor(track.scene_T_box, dtype=torch.float32, device=dev)
+    return T, torch.as_tensor(yaw, dtype=torch.float32, device=dev)
 
 
 def spread(items: list, n: int) -> list:
@@ -242,7 +184,11 @@ class TrainReport:
 
 
 class Trainer:
-    """Holds the scene, its optimizer and the RNG state; ``run`` trains to ``cfg.iterations``."""
+    """Holds the scene, its optimizer and the RNG state; ``run`` trains to ``cfg.iterations``.
+
+    Training runs where the scene's tensors are (``splat.to(device)`` first): targets, masks,
+    optimizer state and densification statistics follow it; random draws come from the CPU
+    generators, so the checkpoint's RNG states serve every device."""
 
     def __init__(self, splat: SplatScene, scene: SceneLog, views: list[SourceView],
                  sky_masks: dict[int, np.ndarray], cfg: TrainConfig,
@@ -251,14 +197,15 @@ class Trainer:
             raise ValueError(f"log {scene.log_id}: no source camera images to train on")
         torch.manual_seed(cfg.seed)
         self.splat, self.cfg = splat, cfg
+        self.device = splat.device
         self.name = scene.log_id[:8]
         self._track_base: dict[str, tuple[torch.Tensor, torch.Tensor]] = {}
         if cfg.lr_pose > 0:
             for o in splat.objects:
                 if o.track.pose_delta is None:
-                    o.track.pose_delta = torch.zeros(len(o.track.timestamps_ns), 4)
+                    o.track.pose_delta = torch.zeros(len(o.track.timestamps_ns), 4, device=self.device)
         no_depth = np.zeros((0, 3), np.float32)
-        self.val_data = [ViewData(v, np.zeros((v.cam.height, v.cam.width), bool), no_depth)
+        self.val_data = [ViewData(v, np.zeros((v.cam.height, v.cam.width), bool), no_depth, self.device)
                          for v in spread(list(validation), cfg.eval_views)]
         self.validation: list[list[float]] = []  # [step, PSNR] per measurement
         self.best_val, self.bad_evals, self.plateau = -math.inf, 0, False
@@ -267,7 +214,8 @@ class Trainer:
         scene_T_city = splat.scene_T_city
         cache: dict = {}
         self.data = [ViewData(v, sky_masks.get(v.index, np.zeros((v.cam.height, v.cam.width), bool)),
-                              lidar_depth_samples(scene, v, scene_T_city, sweep_cache=cache)) for v in views]
+                              lidar_depth_samples(scene, v, scene_T_city, sweep_cache=cache), self.device)
+                     for v in views]
         self.optimizer = build_optimizer(splat, cfg, self.extent)
         self.strategy = DensifyStrategy(cfg.densify, self.extent)
         self.boxes = {f"obj:{o.track.key}": o.track.size_lwh for o in splat.objects}
@@ -326,14 +274,7 @@ class Trainer:
                     if p.grad is not None:
                         torch.nan_to_num_(p.grad, nan=0.0, posinf=0.0, neginf=0.0)
             if m2d is not None and m2d.grad is not None:
-                n_all = max((sl.stop for sl in out.slices.values()), default=0)
-                grad = torch.zeros(n_all, 2)
-                grad[out.index] = m2d.grad[0]
-                visible = torch.zeros(n_all, dtype=torch.bool)
-                visible[out.index] = out.meta["radii"][0].gt(0).any(-1)
-                for name, sl in out.slices.items():
-                    key = name if name == "background" else f"obj:{name}"
-                    self.strategy.accumulate(key, grad[sl], visible[sl], cam.width, cam.height)
+                self._accumulate(out, m2d.grad[0], cam.width, cam.height)
             self.optimizer.step()
         else:
             log.warning("step %d: non-finite loss, skipped", self.step)
@@ -342,6 +283,18 @@ class Trainer:
         store_sets(self.splat, sets)
         self.step += 1
         return value, psnr(out.rgb, img, valid)
+
+    def _accumulate(self, out, grad_px: torch.Tensor, width: int, height: int) -> None:
+        """Hand one render's means2d gradients (pixel units, rasterized rows only) and visibility to
+        densification, per Gaussian set, on the training device (a CPU-rendered meta is moved)."""
+        n_all = max((sl.stop for sl in out.slices.values()), default=0)
+        grad = torch.zeros(n_all, 2, device=self.device)
+        grad[out.index] = grad_px.to(self.device)
+        visible = torch.zeros(n_all, dtype=torch.bool, device=self.device)
+        visible[out.index] = out.meta["radii"][0].gt(0).any(-1).to(self.device)
+        for name, sl in out.slices.items():
+            key = name if name == "background" else f"obj:{name}"
+            self.strategy.accumulate(key, grad[sl], visible[sl], width, height)
 
     def validate(self) -> float | None:
         """Mean PSNR of the validation views at ``eval_level`` x the training resolution (None: no views)."""
@@ -423,10 +376,11 @@ class Trainer:
 
     # ---- checkpoint / resume ----
     def state(self) -> dict:
+        """Everything a resumed run needs, with every tensor on the CPU (device-independent file)."""
         return {"format": CHECKPOINT_FORMAT, "step": self.step, "scene": self.splat.state(),
-                "optimizer": self.optimizer.state_dict(), "rng": self.rng.bit_generator.state,
+                "optimizer": to_cpu(self.optimizer.state_dict()), "rng": self.rng.bit_generator.state,
                 "torch_rng": torch.get_rng_state(), "losses": list(self.losses),
-                "densify_stats": {k: (v.grad, v.count) for k, v in self.strategy.stats.items()},
+                "densify_stats": {k: (v.grad.cpu(), v.count.cpu()) for k, v in self.strategy.stats.items()},
                 "densify_history": list(self.strategy.history),
                 "densify_stopped_at": self.strategy.stopped_at,
                 "validation": [list(x) for x in self.validation], "best_val": self.best_val,
@@ -438,7 +392,8 @@ class Trainer:
         atomic_write_bytes(Path(path), buf.getvalue())
 
     def load(self, path: Path) -> None:
-        """Continue from a checkpoint written by :meth:`save` for the same log and config."""
+        """Continue from a checkpoint written by :meth:`save` for the same log and config, on this
+        trainer's device whichever device wrote it (read with ``map_location``)."""
         from nuav2.splat.densify import _Stats
 
         path = Path(path)
@@ -448,7 +403,7 @@ class Trainer:
             raise ValueError(f"{path}: not a readable training checkpoint ({type(e).__name__}: {e})") from e
         if not isinstance(st, dict) or st.get("format") != CHECKPOINT_FORMAT:
             raise ValueError(f"{path}: not a nuav2 training checkpoint")
-        splat = SplatScene.from_state(st["scene"], str(path))
+        splat = SplatScene.from_state(st["scene"], str(path)).to(self.device)
         if not np.allclose(splat.city_T_scene, self.splat.city_T_scene):
             raise ValueError(f"{path}: checkpoint belongs to another scene frame (another log?)")
         self.splat.background, self.splat.objects, self.splat.sky = splat.background, splat.objects, splat.sky
@@ -458,7 +413,8 @@ class Trainer:
         torch.set_rng_state(st["torch_rng"])
         self.step = int(st["step"])
         self.losses = list(st.get("losses", []))
-        self.strategy.stats = {k: _Stats(g.clone(), c.clone()) for k, (g, c) in st["densify_stats"].items()}
+        self.strategy.stats = {k: _Stats(g.to(self.device, copy=True), c.to(self.device, copy=True))
+                               for k, (g, c) in st["densify_stats"].items()}
         self.strategy.history = list(st["densify_history"])
         self.strategy.stopped_at = st.get("densify_stopped_at")
         self.boxes = {f"obj:{o.track.key}": o.track.size_lwh for o in self.splat.objects}
