@@ -51,7 +51,7 @@ def gather_track_points(tracks: BoxTracks, scene: SceneLog, margin_m: float = MA
 
 def actor_models(points: list[list[np.ndarray]], voxel_m: float = 0.05) -> list[np.ndarray]:
     """Per track, its points of all sweeps in its box frame, one per ``voxel_m`` voxel: the shape the box
-    layer is checked against (``ProxyGeometry.actor_points_city``)."""
+    layer is checked against (``ProxyGeometry.actor_points_box``)."""
     out = []
     for parts in points:
         if not parts:

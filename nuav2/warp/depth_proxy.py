@@ -257,10 +257,9 @@ class ProxyGeometry:
     point_radius_m: F64  # (N,) disk radius per point
     city_T_box: F64  # (B, 4, 4) boxes at this time
     size_lwh: F64  # (B, 3)
-    # The actors' own LiDAR points at this time (city frame) and which box each belongs to: a box pixel
-    # is kept only where these show a surface (boxes without points are kept whole).
-    actor_points_city: F64 | None = None  # (M, 3)
-    actor_box: np.ndarray | None = None  # (M,) int, index into the boxes
+    # Each box's actor's own LiDAR points, in the box frame: a box pixel is kept only where these show a
+    # surface (boxes with too few points are kept whole). Moved to the city only for the boxes a view shows.
+    actor_points_box: tuple[np.ndarray, ...] | None = None  # B x (M_b, 3)
 
     @staticmethod
     def empty() -> ProxyGeometry:
@@ -305,10 +304,13 @@ def actor_surface(camera: CameraSpec, city_T_cam: F64, geometry: ProxyGeometry, 
     ``ACTOR_POINT_RADIUS_M`` disks with small holes closed, must show a surface there in front of what
     lies behind. Boxes with fewer than ``ACTOR_MIN_POINTS`` points (far, occluded) are kept whole."""
     n_box = len(geometry.city_T_box)
-    counts = np.bincount(geometry.actor_box, minlength=n_box)
+    counts = np.array([len(p) for p in geometry.actor_points_box], np.int64)
     shown = np.zeros(n_box, bool)
     shown[np.unique(box_index[box_index >= 0])] = True
-    pts = geometry.actor_points_city[shown[geometry.actor_box]]  # only the boxes this view shows
+    use = np.flatnonzero(shown & (counts >= ACTOR_MIN_POINTS))  # only the boxes this view shows
+    parts = [geometry.actor_points_box[b] @ geometry.city_T_box[b, :3, :3].T + geometry.city_T_box[b, :3, 3]
+             for b in use]
+    pts = np.concatenate(parts) if parts else np.zeros((0, 3))
     d = lidar_depth(camera, city_T_cam, pts, np.full(len(pts), ACTOR_POINT_RADIUS_M), config)
     seen = np.isfinite(d) & (d < behind)
     has_points = counts >= ACTOR_MIN_POINTS
@@ -333,7 +335,7 @@ def render_depth_proxy(camera: CameraSpec, city_T_cam: F64, geometry: ProxyGeome
                                               geometry.point_radius_m, config))
     bd, bi = box_depth(camera, city_T_cam, geometry.city_T_box, geometry.size_lwh, config)
     on_box = bd < depth
-    if geometry.actor_points_city is not None and len(geometry.actor_points_city) and on_box.any():
+    if geometry.actor_points_box is not None and len(geometry.actor_points_box) and on_box.any():
         on_box &= actor_surface(camera, city_T_cam, geometry, np.where(on_box, bi, NO_BOX), depth, config)
     depth = np.where(on_box, bd, depth)
     index = np.where(on_box, bi, NO_BOX).astype(np.int32)

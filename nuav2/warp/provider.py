@@ -157,14 +157,11 @@ class WarpRenderer:
         """Ground, static lidar points and boxes at ``timestamp_ns`` (the boxes also with their tracks)."""
         pts, radius = self.cloud.around(timestamp_ns)
         boxes = self.boxes_at(timestamp_ns)
-        actor_pts, actor_box = None, None
+        actor_pts = None
         if self.actor_points is not None and len(boxes):
-            parts = [self.actor_points[int(k)] @ T[:3, :3].T + T[:3, 3]
-                     for k, T in zip(boxes.track, boxes.city_T_box)]
-            actor_pts = np.concatenate(parts)
-            actor_box = np.repeat(np.arange(len(boxes)), [len(p) for p in parts])
+            actor_pts = tuple(self.actor_points[int(k)] for k in boxes.track)  # box frame; placed on demand
         geometry = ProxyGeometry(self.ground_at(timestamp_ns), pts, radius, boxes.city_T_box, boxes.size_lwh,
-                                 actor_pts, actor_box)
+                                 actor_pts)
         return geometry, boxes
 
     # -- sources --------------------------------------------------------------------------------
