@@ -43,7 +43,7 @@ def test_bench_recon_over_two_seeds_scores_regions_and_marks_the_tuned_seed():
     assert [(r["seed"], r["tuned"]) for r in rows] == [(0, True), (1, False)]
     for r in rows:
         regions = r["target"]["regions"]
-        assert set(regions["psnr_db"]) == {"whole", "ground", "objects", "sky"}
+        assert set(regions["psnr_db"]) == {"whole", "ground", "objects", "sky", "nonrigid"}
         assert regions["psnr_db"]["whole"] == pytest.approx(r["target"]["psnr_db"])
         assert 5.0 < regions["psnr_db"]["ground"] < 60.0 and r["recon_cpu_s"] > 0
         assert r["frames"] == 3 and r["target"]["images"] == 2 * 6

@@ -6,7 +6,7 @@ lengths), so a table pasted into the docs carries its own provenance.
 
 from __future__ import annotations
 
-REGIONS = ("whole", "ground", "objects", "sky")
+REGIONS = ("whole", "ground", "objects", "sky", "nonrigid")
 
 
 def _f(v: float | None, spec: str = ".2f") -> str:

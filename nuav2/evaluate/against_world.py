@@ -22,24 +22,36 @@ from nuav2.maptr.dataset import load_image_rgb
 from nuav2.rig import CameraSpec
 from nuav2.scene import VectorMap
 
-REGIONS = ("whole", "ground", "objects", "sky")
+REGIONS = ("whole", "ground", "objects", "sky", "nonrigid")
+# truth_view's label for a pixel of a non-rigid actor (pedestrian, cyclist: nuav2.actor_tracks.NON_RIGID);
+# the synthetic renderer's own labels call it an object.
+LABEL_NONRIGID = 255
 
 
 def world_region_masks(labels: np.ndarray) -> dict[str, np.ndarray]:
-    """{region: bool (H, W)} from the synthetic renderer's labels; "whole" is every pixel but the ego body.
-    Static structure (buildings, poles) is part of "whole" only."""
+    """{region: bool (H, W)} from the labels of :func:`truth_view`; "whole" is every pixel but the ego body,
+    "objects" every actor, "nonrigid" the pedestrians and cyclists among them. Static structure
+    (buildings, poles) is part of "whole" only."""
     from nuav2.synth import REGION_LABELS
 
+    nonrigid = labels == LABEL_NONRIGID
     return {"whole": labels != REGION_LABELS["ego"], "ground": labels == REGION_LABELS["ground"],
-            "objects": labels == REGION_LABELS["objects"], "sky": labels == REGION_LABELS["sky"]}
+            "objects": (labels == REGION_LABELS["objects"]) | nonrigid, "sky": labels == REGION_LABELS["sky"],
+            "nonrigid": nonrigid}
 
 
 def truth_view(world, camera: CameraSpec, city_T_cam: F64,
                timestamp_ns: int) -> tuple[np.ndarray, np.ndarray]:
-    """(uint8 RGB, region labels) of the world's exact image of ``camera`` at ``city_T_cam`` and time."""
+    """(uint8 RGB, region labels) of the world's exact image of ``camera`` at ``city_T_cam`` and time; a
+    non-rigid actor's pixels are labelled ``LABEL_NONRIGID``."""
+    from nuav2.actor_tracks import is_non_rigid
     from nuav2.synth import render_view
 
-    return render_view(world, camera, city_T_cam, int(timestamp_ns), with_labels=True)
+    img, labels, owner = render_view(world, camera, city_T_cam, int(timestamp_ns), with_labels=True,
+                                     with_owners=True)
+    soft = np.array([is_non_rigid(a.category) for a in world.actors] + [False], bool)
+    labels[soft[np.where(owner >= 0, owner, len(soft) - 1)]] = LABEL_NONRIGID
+    return img, labels
 
 
 def _mean(values: list[float]) -> float | None:

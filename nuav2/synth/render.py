@@ -91,8 +91,9 @@ def _screen_rects(cam_T_local: F64, K: F64, width: int, height: int, boxes: BoxS
 @numba.njit(cache=True, parallel=True)
 def _shade_kernel(origin, dirs, hit_t, hit_box, hit_face, centers, rots, halves, quads, colors, kinds, params,
                   owners, tex_data, tex_box, tex_levels, tex_meta, focal, tmeta, tH, tSD, sky, gmeta, gstart,
-                  gitems, rgb, depth, labels):
-    """Per pixel: the nearest of solid hit / ground hit / sky, its colour and its z-depth."""
+                  gitems, rgb, depth, labels, owner_px):
+    """Per pixel: the nearest of solid hit / ground hit / sky, its colour, its z-depth and the actor it shows
+    (``owner_px``: the actor index, -1 for static solids, ground and sky)."""
     sun = sky[:3]
     shadows = sky[3] > 0.5
     flat = tmeta[12] > 0.5
@@ -142,6 +143,7 @@ def _shade_kernel(origin, dirs, hit_t, hit_box, hit_face, centers, rots, halves,
             rgb[j, 0], rgb[j, 1], rgb[j, 2] = r * shade, g * shade, b * shade
             depth[j] = t_box
             labels[j] = LABEL_OBJECT if owners[i] >= 0 else LABEL_STATIC
+            owner_px[j] = owners[i]
         elif t_ground < np.inf:
             norm = np.sqrt(dx * dx + dy * dy + dz * dz)
             gx_, gy_ = origin[0] + t_ground * dx, origin[1] + t_ground * dy
@@ -166,18 +168,21 @@ def _shade_kernel(origin, dirs, hit_t, hit_box, hit_face, centers, rots, halves,
                     rgb[j, c] *= k
             depth[j] = t_ground
             labels[j] = LABEL_GROUND
+            owner_px[j] = -1
         else:
             sky_color(sky, dx, dy, dz, rgb, j)
             depth[j] = np.inf
             labels[j] = LABEL_SKY
+            owner_px[j] = -1
 
 
 def render_view(world: SyntheticWorld, cam: CameraSpec, city_T_cam: F64, timestamp_ns: int, *,
-                with_depth: bool = False, with_labels: bool = False):
+                with_depth: bool = False, with_labels: bool = False, with_owners: bool = False):
     """RGB uint8 (H, W, 3) of ``world`` seen by ``cam`` at ``city_T_cam`` (actors at ``timestamp_ns``);
     with ``with_depth`` also the float32 (H, W) camera z-depth (inf: sky, 0: ego body), with
-    ``with_labels`` also the uint8 (H, W) region labels (``LABEL_*``). Returns the image alone, or a
-    tuple ``(img, depth)``, ``(img, labels)`` or ``(img, depth, labels)``."""
+    ``with_labels`` also the uint8 (H, W) region labels (``LABEL_*``), with ``with_owners`` also the int32
+    (H, W) actor index per pixel (``world.actors``; -1: not an actor). Returns the image alone, or a tuple
+    of it and the asked-for arrays in that order (``(img, depth)``, ``(img, labels)``, ...)."""
     city_T_cam = np.asarray(city_T_cam, np.float64)
     if city_T_cam.shape != (4, 4) or not np.all(np.isfinite(city_T_cam)):
         raise ValueError(f"city_T_cam must be a finite 4x4 matrix, got shape {city_T_cam.shape}")
@@ -194,6 +199,7 @@ def render_view(world: SyntheticWorld, cam: CameraSpec, city_T_cam: F64, timesta
     rgb = np.empty((w * h, 3), np.float32)
     depth = np.empty(w * h, np.float32)
     labels = np.empty(w * h, np.uint8)
+    owner_px = np.empty(w * h, np.int32)
     sky = world.sky
     grid = shadow_grid(boxes, sky.sun) if sky.structured else shadow_grid(BoxSet.empty(), sky.sun)
     _shade_kernel(origin, dirs, hits.t, hits.box, hits.face, np.ascontiguousarray(boxes.center),
@@ -202,9 +208,9 @@ def render_view(world: SyntheticWorld, cam: CameraSpec, city_T_cam: F64, timesta
                   np.ascontiguousarray(boxes.kind, np.int64), np.ascontiguousarray(boxes.params, np.float64),
                   np.ascontiguousarray(boxes.owner, np.int64), *world.texture.packed.arrays(),
                   float(np.sqrt(K[0, 0] * K[1, 1])), *world.terrain.arrays(), sky.packed(), *grid.arrays(),
-                  rgb, depth, labels)
+                  rgb, depth, labels, owner_px)
     img = np.clip(rgb + 0.5, 0, 255).astype(np.uint8).reshape(h, w, 3)
-    depth, labels = depth.reshape(h, w), labels.reshape(h, w)
+    depth, labels, owner_px = depth.reshape(h, w), labels.reshape(h, w), owner_px.reshape(h, w)
     if cam.ego_mask_polygons:
         mask = cam.ego_mask()
         rows = np.arange(h, dtype=np.float64)[:, None] / max(h - 1, 1)
@@ -212,5 +218,7 @@ def render_view(world: SyntheticWorld, cam: CameraSpec, city_T_cam: F64, timesta
         img[mask] = np.broadcast_to(body, (h, w, 3))[mask].astype(np.uint8)
         depth[mask] = 0.0
         labels[mask] = LABEL_EGO
-    out = (img,) + ((depth,) if with_depth else ()) + ((labels,) if with_labels else ())
+        owner_px[mask] = -1
+    out = ((img,) + ((depth,) if with_depth else ()) + ((labels,) if with_labels else ())
+           + ((owner_px,) if with_owners else ()))
     return out if len(out) > 1 else img
