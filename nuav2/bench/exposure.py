@@ -48,7 +48,7 @@ def bench_exposure(preset: str = "hard", seconds: float = 15.0, seed: int = 0, s
 
     from converters.av2 import read_log
     from nuav2.exposure import ExposureModel
-    from nuav2.synth import SynthConfig, generate_log, load_world, render_view
+    from nuav2.synth import SynthConfig, build_world, generate_log, load_world, render_view
     from nuav2.warp.harmonise import solve_source_exposure, static_points
     from nuav2.warp.provider import WarpRenderer
 
@@ -57,7 +57,9 @@ def bench_exposure(preset: str = "hard", seconds: float = 15.0, seed: int = 0, s
         cfg = SynthConfig.for_preset(preset, seconds=float(seconds))
         if not cfg.exposure:
             raise ValueError(f"--preset {preset}: its images have no exposure effects (use hard)")
-        log_dir = generate_log(root, seed=seed, config=cfg)
+        log_dir = root / "train" / build_world(seed, cfg).log_id  # written atomically: present = complete
+        if not log_dir.is_dir():  # a --work-dir from an earlier run keeps its log
+            log_dir = generate_log(root, seed=seed, config=cfg)
         scene, world = read_log(log_dir), load_world(log_dir)
         warp = WarpRenderer(scene)
         points = static_points(scene, lambda i: warp.cloud.sweep_points(i)[0])

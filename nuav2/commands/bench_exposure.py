@@ -21,7 +21,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--seconds", type=float, default=15.0, help="log length in seconds (default: 15)")
     p.add_argument("--seed", type=int, default=0, help="world seed")
     p.add_argument("--sample", type=int, default=120, help="source images scored (default: 120)")
-    p.add_argument("--work-dir", type=Path, default=None, help="keep the log here")
+    p.add_argument("--work-dir", type=Path, default=None,
+                   help="keep the log here (a later run with the same settings reuses it)")
     p.add_argument("--out", type=Path, default=None, help="also write the JSON here")
     p.add_argument("--markdown", type=Path, default=None, help="also write the docs' table here")
     p.add_argument("--json", action="store_true", help="compact JSON on one line (the default is indented)")
