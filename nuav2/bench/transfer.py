@@ -26,7 +26,8 @@ import torch
 
 from nuav2.atomic import atomic_write_json
 from nuav2.bench.transfer_config import TransferConfig
-from nuav2.bench.transfer_data import prepare_data, test_source, train_source
+from nuav2.bench.transfer_data import prepare_data, test_source
+from nuav2.bench.transfer_jobs import RunJob, run_jobs, train_tensors
 from nuav2.mapping import (
     MapTensors,
     TrainConfig,
@@ -48,7 +49,7 @@ PRED_FILE = "predictions.json"
 _CURVE_KEYS = ("mAP", "class_mean_ap", "map_per_threshold")
 
 
-def _train_config(cfg: TransferConfig, steps: int, seed: int, eval_points: int) -> TrainConfig:
+def train_config(cfg: TransferConfig, steps: int, seed: int, eval_points: int) -> TrainConfig:
     return TrainConfig(
         steps=steps,
         batch_size=cfg.batch_size,
@@ -132,25 +133,14 @@ def run_and_score(
     }
 
 
-def run_table1(cfg: TransferConfig, out: Path, test: TestSet) -> dict[str, dict]:
-    runs = {}
-    for name in cfg.sets:
-        root, split = train_source(cfg, out, name)
-        data = load_map_tensors(root, cfg.version, split, cfg.model, cache_dir=out / "cache")
-        for seed in cfg.seeds:
-            key = f"{name}-s{seed}"
-            runs[key] = {
-                "set": name,
-                **run_and_score(
-                    cfg,
-                    key,
-                    out / "runs" / key,
-                    data,
-                    _train_config(cfg, cfg.steps, seed, cfg.eval_points),
-                    test,
-                ),
-            }
-    return runs
+def table1_jobs(cfg: TransferConfig) -> list[RunJob]:
+    """One run per training set and seed (the AV2-rig runs, dearest, first: the pool ends balanced)."""
+    order = sorted(cfg.sets, key=lambda name: name != "native")
+    return [
+        RunJob(f"{name}-s{seed}", name, cfg.steps, seed, cfg.eval_points, tags=(("set", name),))
+        for name in order
+        for seed in cfg.seeds
+    ]
 
 
 def prior_only(cfg: TransferConfig, out: Path, test: TestSet) -> dict:
@@ -163,26 +153,23 @@ def prior_only(cfg: TransferConfig, out: Path, test: TestSet) -> dict:
     return res
 
 
-def run_table2(cfg: TransferConfig, out: Path, test: TestSet) -> dict[str, dict]:
-    runs = {}
-    root, split = train_source(cfg, out, "truth")
-    for frac in cfg.fractions:
-        data = load_map_tensors(
-            root, cfg.version, split, cfg.model, fraction=frac, seed=cfg.subset_seed, cache_dir=out / "cache"
+def table2_jobs(cfg: TransferConfig) -> list[RunJob]:
+    """Per fraction of the oracle set and seed: from scratch, and from the nuAV2 run of that seed."""
+    return [
+        RunJob(
+            f"ft{round(frac * 100):g}-{arm}-s{seed}",
+            "truth",
+            cfg.finetune_steps,
+            seed,
+            2,
+            fraction=frac,
+            init=f"{cfg.pretrain_set}-s{seed}" if arm == "pretrained" else None,
+            tags=(("fraction", frac), ("arm", arm)),
         )
-        for seed in cfg.seeds:
-            tcfg = _train_config(cfg, cfg.finetune_steps, seed, 2)
-            for arm in ("scratch", "pretrained"):
-                init = (
-                    out / "runs" / f"{cfg.pretrain_set}-s{seed}" / "model.pt" if arm == "pretrained" else None
-                )
-                key = f"ft{round(frac * 100):g}-{arm}-s{seed}"
-                runs[key] = {
-                    "fraction": frac,
-                    "arm": arm,
-                    **run_and_score(cfg, key, out / "runs" / key, data, tcfg, test, init),
-                }
-    return runs
+        for frac in cfg.fractions
+        for seed in cfg.seeds
+        for arm in ("scratch", "pretrained")
+    ]
 
 
 def run_transfer(
@@ -204,8 +191,12 @@ def run_transfer(
     data_info = prepare_data(cfg, out, progress)
     t_data = time.perf_counter() - t0
     test = TestSet(cfg, out)
-    table1 = run_table1(cfg, out, test)
-    table2 = run_table2(cfg, out, test) if cfg.fractions else {}
+    for name in cfg.sets:  # fill the tensor cache here, once, before workers read it
+        train_tensors(cfg, out, name)
+    for frac in cfg.fractions:
+        train_tensors(cfg, out, "truth", frac)
+    table1 = run_jobs(cfg, out, table1_jobs(cfg), test)
+    table2 = run_jobs(cfg, out, table2_jobs(cfg), test) if cfg.fractions else {}
     result = {
         "benchmark": "transfer",
         "command": command,

@@ -67,7 +67,9 @@ class TransferConfig:
     finetune_steps: int = 600
     batch_size: int = 2
     lr: float = 2e-3
-    threads: int = 2
+    threads: int = 1  # torch threads per training run
+    workers: int = 2  # training runs at once (worker processes; 1: in the main process)
+    rotations_deg: tuple[float, ...] = (-20.0, -10.0, 10.0, 20.0)  # BEV rotation augmentation angles
     version: str = "v1.0-nuav2"
     model: MapModelConfig = field(default_factory=MapModelConfig)
 
@@ -92,6 +94,8 @@ class TransferConfig:
             raise ValueError(
                 "train and test worlds must lie in different cities (geo-disjoint by construction)"
             )
+        if self.workers < 1 or self.threads < 1:
+            raise ValueError(f"workers and threads must be >= 1, got {self.workers}, {self.threads}")
         if any(not 0 < f <= 1 for f in self.fractions):
             raise ValueError(f"fractions must be in (0, 1], got {self.fractions}")
 

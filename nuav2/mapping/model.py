@@ -21,7 +21,9 @@ class MapModel(nn.Module):
         super().__init__()
         self.cfg = cfg
         k = len(cfg.classes)
-        self.backbone = ImageBackbone(cfg.stem_channels, cfg.stage_channels, cfg.feat_channels)
+        self.backbone = ImageBackbone(
+            cfg.stem_channels, cfg.stage_channels, cfg.feat_channels, cfg.feat_stride
+        )
         self.lift = LiftSplat(cfg, cfg.feat_channels)
         self.bev_encoder = BEVEncoder(cfg.feat_channels, cfg.bev_channels)
         self.decoder = VectorDecoder(cfg, cfg.bev_channels)
