@@ -108,6 +108,7 @@ def run_and_score(
         )
         result["run_fingerprint"] = info["fingerprint"]
         atomic_write_json(eval_path, result, indent=1)
+        torch.set_num_threads(tcfg.threads)  # nuav2 eval's numba kernels reset it (see mapping.train)
     if "ap" not in result.get("bev_seg", {}):  # the diagnostic, not part of nuav2 eval; added to older evals
         result["bev_seg"] = bev_seg_scores(load_model(run_dir), test.data)
         atomic_write_json(eval_path, result, indent=1)
@@ -195,8 +196,10 @@ def run_transfer(
         train_tensors(cfg, out, name)
     for frac in cfg.fractions:
         train_tensors(cfg, out, "truth", frac)
-    table1 = run_jobs(cfg, out, table1_jobs(cfg), test)
-    table2 = run_jobs(cfg, out, table2_jobs(cfg), test) if cfg.fractions else {}
+    t1_jobs, t2_jobs = table1_jobs(cfg), table2_jobs(cfg)
+    runs = run_jobs(cfg, out, t1_jobs + t2_jobs, test)
+    table1 = {j.key: runs[j.key] for j in t1_jobs}
+    table2 = {j.key: runs[j.key] for j in t2_jobs}
     result = {
         "benchmark": "transfer",
         "command": command,

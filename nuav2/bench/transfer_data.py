@@ -67,34 +67,42 @@ def world_specs(cfg: TransferConfig) -> list[WorldSpec]:
     return train + test
 
 
-def generate_worlds(cfg: TransferConfig, worlds_dir: Path) -> list[dict]:
-    """Write every world's AV2 log (skipping logs already there); returns one record per world."""
+def _generate_one(worlds_dir: Path, spec: WorldSpec, cfg: TransferConfig) -> dict:
+    """One world's record, writing its AV2 log unless it is there (a worker process's job)."""
     from nuav2.synth import generate_log
     from nuav2.synth.world import build_world, clear_world_cache
 
-    out = []
-    for spec in world_specs(cfg):
-        scfg = synth_config(cfg, spec)
-        log_id = build_world(spec.seed, scfg).log_id
-        log_dir = worlds_dir / spec.split / log_id
-        t0, c0 = time.perf_counter(), time.process_time()
-        fresh = not log_dir.is_dir()
-        if fresh:
-            generate_log(worlds_dir, spec.seed, scfg, spec.split)
-        clear_world_cache()
-        out.append(
-            {
-                "seed": spec.seed,
-                "split": "train" if spec.split == "train" else "test",
-                "layout": spec.layout,
-                "city": spec.city,
-                "log_id": log_id,
-                "generated": fresh,
-                "wall_s": time.perf_counter() - t0,
-                "cpu_s": time.process_time() - c0,
-            }
-        )
-    return out
+    scfg = synth_config(cfg, spec)
+    log_id = build_world(spec.seed, scfg).log_id
+    log_dir = worlds_dir / spec.split / log_id
+    t0, c0 = time.perf_counter(), time.process_time()
+    fresh = not log_dir.is_dir()
+    if fresh:
+        generate_log(worlds_dir, spec.seed, scfg, spec.split)
+    clear_world_cache()
+    return {
+        "seed": spec.seed,
+        "split": "train" if spec.split == "train" else "test",
+        "layout": spec.layout,
+        "city": spec.city,
+        "log_id": log_id,
+        "generated": fresh,
+        "wall_s": time.perf_counter() - t0,
+        "cpu_s": time.process_time() - c0,
+    }
+
+
+def generate_worlds(cfg: TransferConfig, worlds_dir: Path) -> list[dict]:
+    """Write every world's AV2 log (skipping logs already there), ``cfg.workers`` at a time; returns
+    one record per world, in ``world_specs`` order."""
+    specs = world_specs(cfg)
+    if cfg.workers <= 1 or len(specs) <= 1:
+        return [_generate_one(worlds_dir, spec, cfg) for spec in specs]
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    with ProcessPoolExecutor(cfg.workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+        return list(pool.map(_generate_one, [worlds_dir] * len(specs), specs, [cfg] * len(specs)))
 
 
 def convert_set(cfg: TransferConfig, name: str, worlds_dir: Path, db_dir: Path, progress: bool) -> dict:
@@ -109,6 +117,7 @@ def convert_set(cfg: TransferConfig, name: str, worlds_dir: Path, db_dir: Path, 
         scale=cfg.target_scale,
         recon_preset=cfg.recon_preset,
         show_progress=progress,
+        workers=cfg.workers,  # logs in parallel processes (not part of the shards' fingerprint)
     )
     t0, c0 = time.perf_counter(), time.process_time()
     report = convert_av2(src, db_dir, opts)

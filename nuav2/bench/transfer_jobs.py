@@ -73,11 +73,18 @@ def _init_worker(level: int) -> None:
 
 
 def run_jobs(cfg: TransferConfig, out: Path, jobs: list[RunJob], test) -> dict[str, dict]:
-    """Every job's record by key: in this process when ``cfg.workers`` is 1, else in that many
-    spawned workers (spawn, not fork: a forked child of a process that has run OpenMP can hang)."""
+    """Every job's record by key: in this process when ``cfg.workers`` is 1, else in that many spawned
+    workers (spawn, not fork: a forked child of a process that has run OpenMP can hang). A job whose
+    ``init`` is another job of the list starts when that one has finished; the others start in
+    list order, so fine-tuning from scratch overlaps the pretraining runs."""
+    keys = {j.key for j in jobs}
     if cfg.workers <= 1 or len(jobs) <= 1:
-        return {j.key: run_job(cfg, out, j, test) for j in jobs}
+        done: dict[str, dict] = {}
+        for j in sorted(jobs, key=lambda j: j.init in keys):  # dependents last (stable otherwise)
+            done[j.key] = run_job(cfg, out, j, test)
+        return {j.key: done[j.key] for j in jobs}
     import multiprocessing
+    from concurrent.futures import FIRST_COMPLETED, wait
 
     level = logging.getLogger().getEffectiveLevel()
     with ProcessPoolExecutor(
@@ -86,5 +93,18 @@ def run_jobs(cfg: TransferConfig, out: Path, jobs: list[RunJob], test) -> dict[s
         initializer=_init_worker,
         initargs=(level,),
     ) as pool:
-        futures = {j.key: pool.submit(run_job, cfg, out, j) for j in jobs}
-        return {key: f.result() for key, f in futures.items()}
+        futures = {}
+        waiting = [j for j in jobs if j.init in keys]
+        for j in jobs:
+            if j.init not in keys:
+                futures[j.key] = pool.submit(run_job, cfg, out, j)
+        while waiting:
+            deps = [futures[j.init] for j in waiting if j.init in futures]
+            if not deps:
+                raise ValueError(f"jobs {[j.key for j in waiting]} wait on each other")
+            wait(deps, return_when=FIRST_COMPLETED)
+            for j in [j for j in waiting if j.init in futures and futures[j.init].done()]:
+                futures[j.init].result()  # a failed dependency fails here
+                futures[j.key] = pool.submit(run_job, cfg, out, j)
+                waiting.remove(j)
+        return {j.key: futures[j.key].result() for j in jobs}

@@ -48,6 +48,10 @@ class MapModelConfig:
     decoder_layers: int = 3
     decoder_dim: int = 128
     decoder_heads: int = 4
+    # how much of the vector decoder's gradient reaches the BEV features (0: none, 1: all). Early in
+    # training the set loss's gradient (random queries, changing matches) swamps the dense losses
+    # that teach the lift where lines are; measured in docs/transfer.md
+    decoder_grad_scale: float = 1.0
 
     def __post_init__(self) -> None:
         _check_positive(
@@ -67,6 +71,8 @@ class MapModelConfig:
                 "decoder_heads",
             ),
         )
+        if not 0.0 <= self.decoder_grad_scale <= 1.0:
+            raise ValueError(f"MapModelConfig.decoder_grad_scale {self.decoder_grad_scale} is not in [0, 1]")
         if self.depth_max_m <= self.depth_min_m:
             raise ValueError(f"MapModelConfig.depth_max_m must exceed depth_min_m, got {self.depth_max_m}")
         if self.lift_z_range_m[1] <= self.lift_z_range_m[0]:

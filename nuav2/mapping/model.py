@@ -42,8 +42,10 @@ class MapModel(nn.Module):
         h, w = feats.shape[-2:]
         bev, depth = self.lift(feats.view(B, N, -1, h, w), lidar2img, img_hw)
         bev = self.bev_encoder(bev)
+        g = self.cfg.decoder_grad_scale
+        to_decoder = bev if g == 1.0 else bev.detach() if g == 0.0 else bev * g + bev.detach() * (1.0 - g)
         return {
-            "layers": self.decoder(bev, one2many),
+            "layers": self.decoder(to_decoder, one2many),
             "bev_seg": self.bev_seg(bev),
             "pv_seg": self.pv_seg(feats).view(B, N, -1, h, w),
             "depth": depth,

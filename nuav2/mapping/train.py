@@ -208,6 +208,9 @@ def train(
             if step in eval_steps and evaluator is not None:
                 t1 = time.perf_counter()
                 curve.append({"step": step, **evaluator(model)})
+                # the evaluator's numba kernels (OpenMP) reset torch's thread count to the machine's;
+                # left so, a 1-thread run in a busy machine ran 10x slower after its first curve point
+                torch.set_num_threads(train_cfg.threads)
                 elapsed["eval_wall_s"] += time.perf_counter() - t1
             if (
                 train_cfg.checkpoint_every and step % train_cfg.checkpoint_every == 0
