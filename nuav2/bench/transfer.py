@@ -35,6 +35,7 @@ from nuav2.mapping import (
     load_map_tensors,
     load_model,
     predict,
+    predict_from_seg,
     score_in_process,
     score_with_nuav2_eval,
     train,
@@ -44,8 +45,12 @@ from nuav2.mapping import (
 log = logging.getLogger(__name__)
 
 RESULT_FILE = "transfer.json"
-EVAL_FILE = "eval.json"
-PRED_FILE = "predictions.json"
+# per decoding of a model: its MapTR result file and the nuav2 eval result on it
+DECODINGS = {
+    "vector": ("predictions.json", "eval.json"),  # the vector head (MapTR's decoding)
+    "seg": ("predictions_seg.json", "eval_seg.json"),  # polylines traced from the BEV segmentation
+}
+EVAL_KEYS = ("ap", "class_mean_ap", "map_per_threshold", "mAP", "num_gts", "num_preds", "n_samples")
 _CURVE_KEYS = ("mAP", "class_mean_ap", "map_per_threshold")
 
 
@@ -76,8 +81,10 @@ class TestSet:
         self.gts = gt_vectors_for_split(self.dataroot, cfg.version, self.split, patch=tuple(cfg.model.patch))
 
     def curve_point(self, model) -> dict:
+        """Both decodings' scores (``seg_mAP``: traced from the BEV segmentation)."""
         r = score_in_process(predict(model, self.data), self.gts, self.cfg.model.classes)
-        return {k: r[k] for k in _CURVE_KEYS}
+        seg = score_in_process(predict_from_seg(model, self.data), self.gts, self.cfg.model.classes)
+        return {**{k: r[k] for k in _CURVE_KEYS}, "seg_mAP": seg["mAP"]}
 
     def blank(self) -> MapTensors:
         """The test set with every image a flat grey: what a model predicts from its prior alone."""
@@ -98,21 +105,26 @@ def run_and_score(
         "run %s: %d keyframes, %d steps%s", name, len(data), tcfg.steps, f", from {init}" if init else ""
     )
     info = train(cfg.model, tcfg, data, run_dir, init_weights=init, evaluator=test.curve_point)
-    eval_path = run_dir / EVAL_FILE
-    result = json.loads(eval_path.read_text()) if eval_path.is_file() else {}
-    if result.get("run_fingerprint") != info["fingerprint"]:
-        preds = predict(load_model(run_dir), test.data)
-        pred_path = write_results(run_dir / PRED_FILE, preds, cfg.model.classes, {"run": name})
-        result = score_with_nuav2_eval(
-            pred_path, test.dataroot, cfg.version, test.split, cfg.model.classes, eval_path
-        )
-        result["run_fingerprint"] = info["fingerprint"]
-        atomic_write_json(eval_path, result, indent=1)
-        torch.set_num_threads(tcfg.threads)  # nuav2 eval's numba kernels reset it (see mapping.train)
-    if "ap" not in result.get("bev_seg", {}):  # the diagnostic, not part of nuav2 eval; added to older evals
-        result["bev_seg"] = bev_seg_scores(load_model(run_dir), test.data)
-        atomic_write_json(eval_path, result, indent=1)
-    final_curve = info["curve"][-1]["mAP"] if info["curve"] else None
+    results = {}
+    for decoding, (pred_file, eval_file) in DECODINGS.items():
+        eval_path = run_dir / eval_file
+        result = json.loads(eval_path.read_text()) if eval_path.is_file() else {}
+        if result.get("run_fingerprint") != info["fingerprint"]:
+            model = load_model(run_dir)
+            preds = predict(model, test.data) if decoding == "vector" else predict_from_seg(model, test.data)
+            pred_path = write_results(
+                run_dir / pred_file, preds, cfg.model.classes, {"run": name, "decoding": decoding}
+            )
+            result = score_with_nuav2_eval(
+                pred_path, test.dataroot, cfg.version, test.split, cfg.model.classes, eval_path
+            )
+            result["run_fingerprint"] = info["fingerprint"]
+            torch.set_num_threads(tcfg.threads)  # nuav2 eval's numba kernels reset it (see mapping.train)
+            if decoding == "vector":  # the diagnostic, not part of nuav2 eval
+                result["bev_seg"] = bev_seg_scores(model, test.data)
+            atomic_write_json(eval_path, result, indent=1)
+        results[decoding] = result
+    last = info["curve"][-1] if info["curve"] else None
     return {
         "name": name,
         "run_dir": str(run_dir),
@@ -124,13 +136,15 @@ def run_and_score(
         "curve": info["curve"],
         "elapsed": info["elapsed"],
         "load_avg": info["load_avg"],
-        "eval": {
-            k: result[k]
-            for k in ("ap", "class_mean_ap", "map_per_threshold", "mAP", "num_gts", "num_preds", "n_samples")
-        },
-        "bev_seg": result["bev_seg"],
-        # the in-process curve's last point and the CLI's score must agree (same function, same file)
-        "eval_matches_curve": final_curve is None or abs(final_curve - result["mAP"]) < 1e-9,
+        "eval": {k: results["vector"][k] for k in EVAL_KEYS},
+        "eval_seg": {k: results["seg"][k] for k in EVAL_KEYS},
+        "bev_seg": results["vector"]["bev_seg"],
+        # the in-process curve's last point and the CLI's scores must agree (same functions, same files)
+        "eval_matches_curve": last is None
+        or (
+            abs(last["mAP"] - results["vector"]["mAP"]) < 1e-9
+            and abs(last["seg_mAP"] - results["seg"]["mAP"]) < 1e-9
+        ),
     }
 
 
@@ -149,8 +163,10 @@ def prior_only(cfg: TransferConfig, out: Path, test: TestSet) -> dict:
     res = {}
     for seed in cfg.seeds:
         model = load_model(out / "runs" / f"truth-s{seed}")
-        r = score_in_process(predict(model, test.blank()), test.gts, cfg.model.classes)
-        res[f"truth-s{seed}"] = {k: r[k] for k in _CURVE_KEYS}
+        blank = test.blank()
+        r = score_in_process(predict(model, blank), test.gts, cfg.model.classes)
+        seg = score_in_process(predict_from_seg(model, blank), test.gts, cfg.model.classes)
+        res[f"truth-s{seed}"] = {**{k: r[k] for k in _CURVE_KEYS}, "seg_mAP": seg["mAP"]}
     return res
 
 
@@ -224,6 +240,7 @@ def run_transfer(
         },
     }
     result.update(summarize(result))
+    result["seg_decoded"] = summarize(result, "eval_seg")
     if figures:
         result["figures"] = write_figures(result, out, test)
     atomic_write_json(out / RESULT_FILE, result, indent=1)

@@ -52,6 +52,7 @@ class MapModelConfig:
     # training the set loss's gradient (random queries, changing matches) swamps the dense losses
     # that teach the lift where lines are; measured in docs/transfer.md
     decoder_grad_scale: float = 1.0
+    decoder_sees_seg: bool = False  # the decoder also samples the BEV segmentation logits (detached)
 
     def __post_init__(self) -> None:
         _check_positive(

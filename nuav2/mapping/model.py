@@ -26,7 +26,7 @@ class MapModel(nn.Module):
         )
         self.lift = LiftSplat(cfg, cfg.feat_channels)
         self.bev_encoder = BEVEncoder(cfg.feat_channels, cfg.bev_channels)
-        self.decoder = VectorDecoder(cfg, cfg.bev_channels)
+        self.decoder = VectorDecoder(cfg, cfg.bev_channels + (k if cfg.decoder_sees_seg else 0))
         self.bev_seg = nn.Conv2d(cfg.bev_channels, k, 1)
         self.pv_seg = nn.Conv2d(cfg.feat_channels, k, 1)
         prior = -4.6  # sigmoid ~ 1 %: map lines cover few pixels
@@ -44,9 +44,12 @@ class MapModel(nn.Module):
         bev = self.bev_encoder(bev)
         g = self.cfg.decoder_grad_scale
         to_decoder = bev if g == 1.0 else bev.detach() if g == 0.0 else bev * g + bev.detach() * (1.0 - g)
+        seg = self.bev_seg(bev)
+        if self.cfg.decoder_sees_seg:
+            to_decoder = torch.cat([to_decoder, seg.detach()], 1)
         return {
             "layers": self.decoder(to_decoder, one2many),
-            "bev_seg": self.bev_seg(bev),
+            "bev_seg": seg,
             "pv_seg": self.pv_seg(feats).view(B, N, -1, h, w),
             "depth": depth,
         }
