@@ -42,8 +42,8 @@ def decode(logits: torch.Tensor, pts01: torch.Tensor, cfg: MapModelConfig, top_k
 
 
 @torch.no_grad()
-def predict(model, data: MapTensors, batch_size: int = 4, top_k: int = TOP_K) -> dict[str, Scored]:
-    """Predictions of the model's last decoder layer for every keyframe of ``data`` (eval mode)."""
+def _per_sample(model, data: MapTensors, batch_size: int, decode_one) -> dict[str, Scored]:
+    """``decode_one(outputs, j)`` of every keyframe of ``data`` by token, the model in eval mode."""
     was_training = model.training
     model.eval()
     out: dict[str, Scored] = {}
@@ -51,15 +51,24 @@ def predict(model, data: MapTensors, batch_size: int = 4, top_k: int = TOP_K) ->
         for start in range(0, len(data), batch_size):
             index = list(range(start, min(len(data), start + batch_size)))
             b = data.batch(index)
-            logits, pts = model(b["img"], b["lidar2img"], b["img_hw"])["layers"][-1]
+            outputs = model(b["img"], b["lidar2img"], b["img_hw"])
             for j, i in enumerate(index):
-                out[data.tokens[i]] = decode(logits[j], pts[j], model.cfg, top_k)
+                out[data.tokens[i]] = decode_one(outputs, j)
     finally:
         model.train(was_training)
     return out
 
 
-@torch.no_grad()
+def predict(model, data: MapTensors, batch_size: int = 4, top_k: int = TOP_K) -> dict[str, Scored]:
+    """Predictions of the model's last decoder layer for every keyframe of ``data`` (eval mode)."""
+
+    def one(outputs: dict, j: int) -> Scored:
+        logits, pts = outputs["layers"][-1]
+        return decode(logits[j], pts[j], model.cfg, top_k)
+
+    return _per_sample(model, data, batch_size, one)
+
+
 def predict_from_seg(
     model, data: MapTensors, batch_size: int = 4, threshold: float = SEG_THRESHOLD
 ) -> dict[str, Scored]:
@@ -67,19 +76,9 @@ def predict_from_seg(
     same model's second MapTR result file, scored by the same ``nuav2 eval``."""
     from nuav2.mapping.seg_vectors import seg_vectors
 
-    was_training = model.training
-    model.eval()
-    out: dict[str, Scored] = {}
-    try:
-        for start in range(0, len(data), batch_size):
-            index = list(range(start, min(len(data), start + batch_size)))
-            b = data.batch(index)
-            logits = model(b["img"], b["lidar2img"], b["img_hw"])["bev_seg"]
-            for j, i in enumerate(index):
-                out[data.tokens[i]] = seg_vectors(logits[j], model.cfg, threshold)
-    finally:
-        model.train(was_training)
-    return out
+    return _per_sample(
+        model, data, batch_size, lambda o, j: seg_vectors(o["bev_seg"][j], model.cfg, threshold)
+    )
 
 
 @torch.no_grad()
