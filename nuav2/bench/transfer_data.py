@@ -68,41 +68,50 @@ def world_specs(cfg: TransferConfig) -> list[WorldSpec]:
 
 
 def _generate_one(worlds_dir: Path, spec: WorldSpec, cfg: TransferConfig) -> dict:
-    """One world's record, writing its AV2 log unless it is there (a worker process's job)."""
+    """Write one world's AV2 log (a worker process's job); its wall and CPU time."""
     from nuav2.synth import generate_log
-    from nuav2.synth.world import build_world, clear_world_cache
+    from nuav2.synth.world import clear_world_cache
 
-    scfg = synth_config(cfg, spec)
-    log_id = build_world(spec.seed, scfg).log_id
-    log_dir = worlds_dir / spec.split / log_id
     t0, c0 = time.perf_counter(), time.process_time()
-    fresh = not log_dir.is_dir()
-    if fresh:
-        generate_log(worlds_dir, spec.seed, scfg, spec.split)
+    generate_log(worlds_dir, spec.seed, synth_config(cfg, spec), spec.split)
     clear_world_cache()
-    return {
-        "seed": spec.seed,
-        "split": "train" if spec.split == "train" else "test",
-        "layout": spec.layout,
-        "city": spec.city,
-        "log_id": log_id,
-        "generated": fresh,
-        "wall_s": time.perf_counter() - t0,
-        "cpu_s": time.process_time() - c0,
-    }
+    return {"wall_s": time.perf_counter() - t0, "cpu_s": time.process_time() - c0}
 
 
 def generate_worlds(cfg: TransferConfig, worlds_dir: Path) -> list[dict]:
-    """Write every world's AV2 log (skipping logs already there), ``cfg.workers`` at a time; returns
-    one record per world, in ``world_specs`` order."""
-    specs = world_specs(cfg)
-    if cfg.workers <= 1 or len(specs) <= 1:
-        return [_generate_one(worlds_dir, spec, cfg) for spec in specs]
-    import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor
+    """Write every world's AV2 log that is not there yet (``cfg.workers`` at a time); returns one
+    record per world, in ``world_specs`` order."""
+    from nuav2.synth.world import world_log_id
 
-    with ProcessPoolExecutor(cfg.workers, mp_context=multiprocessing.get_context("spawn")) as pool:
-        return list(pool.map(_generate_one, [worlds_dir] * len(specs), specs, [cfg] * len(specs)))
+    specs = world_specs(cfg)
+    records = []
+    for spec in specs:
+        log_id = world_log_id(spec.seed, synth_config(cfg, spec))
+        records.append(
+            {
+                "seed": spec.seed,
+                "split": "train" if spec.split == "train" else "test",
+                "layout": spec.layout,
+                "city": spec.city,
+                "log_id": log_id,
+                "generated": not (worlds_dir / spec.split / log_id).is_dir(),
+                "wall_s": 0.0,
+                "cpu_s": 0.0,
+            }
+        )
+    todo = [(spec, rec) for spec, rec in zip(specs, records) if rec["generated"]]
+    if cfg.workers <= 1 or len(todo) <= 1:
+        times = [_generate_one(worlds_dir, spec, cfg) for spec, _ in todo]
+    else:
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor
+
+        ctx = multiprocessing.get_context("spawn")
+        with ProcessPoolExecutor(min(cfg.workers, len(todo)), mp_context=ctx) as pool:
+            times = list(pool.map(_generate_one, *zip(*[(worlds_dir, spec, cfg) for spec, _ in todo])))
+    for (_, rec), t in zip(todo, times):
+        rec.update(t)
+    return records
 
 
 def convert_set(cfg: TransferConfig, name: str, worlds_dir: Path, db_dir: Path, progress: bool) -> dict:

@@ -72,15 +72,41 @@ def _init_worker(level: int) -> None:
     logging.basicConfig(level=level, format="%(asctime)s %(processName)s %(name)s: %(message)s")
 
 
+def finished(cfg: TransferConfig, out: Path, job: RunJob) -> bool:
+    """Whether the job's run and its evaluations are there for what it would train now (same
+    fingerprint): such a job only reads them back, so a rerun spawns no workers for it."""
+    import json
+
+    from nuav2.bench.transfer import DECODINGS, train_config
+    from nuav2.mapping.train import MODEL, RUN_JSON, run_fingerprint
+
+    run_dir = out / "runs" / job.key
+    init = out / "runs" / job.init / "model.pt" if job.init else None
+    files = [run_dir / RUN_JSON, run_dir / MODEL] + [run_dir / e for _, e in DECODINGS.values()]
+    if (init is not None and not init.is_file()) or not all(f.is_file() for f in files):
+        return False
+    tcfg = train_config(cfg, job.steps, job.seed, job.eval_points)
+    key = run_fingerprint(cfg.model, tcfg, train_tensors(cfg, out, job.set, job.fraction), init)
+    records = [json.loads((run_dir / RUN_JSON).read_text()).get("fingerprint")]
+    records += [json.loads((run_dir / e).read_text()).get("run_fingerprint") for _, e in DECODINGS.values()]
+    return all(r == key for r in records)
+
+
 def run_jobs(cfg: TransferConfig, out: Path, jobs: list[RunJob], test) -> dict[str, dict]:
-    """Every job's record by key: in this process when ``cfg.workers`` is 1, else in that many spawned
-    workers (spawn, not fork: a forked child of a process that has run OpenMP can hang). A job whose
-    ``init`` is another job of the list starts when that one has finished; the others start in
-    list order, so fine-tuning from scratch overlaps the pretraining runs."""
+    """Every job's record by key. Finished jobs (and everything when ``cfg.workers`` is 1) run in this
+    process; the rest in that many spawned workers (spawn, not fork: a forked child of a process that
+    has run OpenMP can hang). A job whose ``init`` is another job of the list starts when that one
+    has finished (and counts as finished only if that one does); the others start in list order, so
+    fine-tuning from scratch overlaps the pretraining runs."""
     keys = {j.key for j in jobs}
-    if cfg.workers <= 1 or len(jobs) <= 1:
-        done: dict[str, dict] = {}
-        for j in sorted(jobs, key=lambda j: j.init in keys):  # dependents last (stable otherwise)
+    ready: set[str] = set()
+    for j in sorted(jobs, key=lambda j: j.init in keys):  # dependents after what they start from
+        if (j.init not in keys or j.init in ready) and finished(cfg, out, j):
+            ready.add(j.key)
+    todo = [j for j in jobs if j.key not in ready]
+    done = {j.key: run_job(cfg, out, j, test) for j in jobs if j.key in ready}
+    if cfg.workers <= 1 or len(todo) <= 1:
+        for j in sorted(todo, key=lambda j: j.init in keys):
             done[j.key] = run_job(cfg, out, j, test)
         return {j.key: done[j.key] for j in jobs}
     import multiprocessing
@@ -88,15 +114,15 @@ def run_jobs(cfg: TransferConfig, out: Path, jobs: list[RunJob], test) -> dict[s
 
     level = logging.getLogger().getEffectiveLevel()
     with ProcessPoolExecutor(
-        max_workers=min(cfg.workers, len(jobs)),
+        max_workers=min(cfg.workers, len(todo)),
         mp_context=multiprocessing.get_context("spawn"),
         initializer=_init_worker,
         initargs=(level,),
     ) as pool:
         futures = {}
-        waiting = [j for j in jobs if j.init in keys]
-        for j in jobs:
-            if j.init not in keys:
+        waiting = [j for j in todo if j.init in keys and j.init not in ready]
+        for j in todo:
+            if j not in waiting:
                 futures[j.key] = pool.submit(run_job, cfg, out, j)
         while waiting:
             deps = [futures[j.init] for j in waiting if j.init in futures]
@@ -107,4 +133,5 @@ def run_jobs(cfg: TransferConfig, out: Path, jobs: list[RunJob], test) -> dict[s
                 futures[j.init].result()  # a failed dependency fails here
                 futures[j.key] = pool.submit(run_job, cfg, out, j)
                 waiting.remove(j)
-        return {j.key: futures[j.key].result() for j in jobs}
+        done.update({key: f.result() for key, f in futures.items()})
+    return {j.key: done[j.key] for j in jobs}

@@ -51,7 +51,7 @@ class MapModelConfig:
     # how much of the vector decoder's gradient reaches the BEV features (0: none, 1: all). Early in
     # training the set loss's gradient (random queries, changing matches) swamps the dense losses
     # that teach the lift where lines are; measured in docs/transfer.md
-    decoder_grad_scale: float = 1.0
+    decoder_grad_scale: float = 0.0
     decoder_sees_seg: bool = False  # the decoder also samples the BEV segmentation logits (detached)
 
     def __post_init__(self) -> None:
