@@ -168,3 +168,46 @@ def test_bev_seg_scores_of_perfect_inverted_and_shifted_maps(truth_db):
     near = bev_seg_scores(_Replay((20 * target - 10).roll(1, dims=-1), 4), data)
     far = bev_seg_scores(_Replay((20 * target - 10).roll((3, 3), dims=(-2, -1)), 4), data)
     assert near["f1"] > 0.9 > far["f1"]
+
+
+def test_rotated_frames_carry_the_map_of_the_rotated_patch(truth_db):
+    """Angle 0 gives exactly the dataset's own GT; at 15 degrees the GT is the original map rotated
+    (checked point by point against the dataset's own polylines), and the rotated ``lidar2img`` sends
+    each rotated point to the pixel the original point had."""
+    import numpy as np
+    from shapely.geometry import MultiLineString, Point
+
+    from nuav2.mapping.rotations import rotate_batch, rotated_targets, rotation_T
+    from nuav2.maptr.dataset import MapSampleDataset
+
+    data = load_map_tensors(truth_db, VERSION, SPLIT, SMALL, rotations_deg=(15.0,))
+    assert data.meta["rotations_deg"] == [15.0] and len(data.rotated) == len(data)
+    ds = MapSampleDataset(truth_db, VERSION, SPLIT, load_images=False)
+    same = rotated_targets(ds, 1, 0.0, SMALL)
+    assert torch.equal(same["labels"], data.gt_labels[1]) and torch.equal(same["shifts"], data.gt_shifts[1])
+    assert torch.equal(same["bev"], data.bev_target[1])
+
+    rot = data.rotated[1][0]
+    R = rotation_T(15.0)[:2, :2]
+    # the rotated frame's dividers and boundaries lie on the original ones (as the dataset cuts them)
+    # rotated, wherever they fall inside the original patch (crossings gain edges along the rotated
+    # patch's border and centerlines are simplified after the cut, so those differ legitimately)
+    lines = [0, 2]  # divider, boundary
+    original = MultiLineString([p @ R.T for c, p in ds[1]["gt_vectors"] if SMALL.classes.index(c) in lines])
+    keep = (rot["labels"][:, None] == torch.tensor(lines)).any(1)
+    pts = rot["shifts"][keep, 0].reshape(-1, 2).double().numpy()
+    back = pts @ R  # into the original frame
+    hx, hy = SMALL.half_extent_xy
+    inside = (np.abs(back[:, 0]) < hx - 1) & (np.abs(back[:, 1]) < hy - 1)
+    assert inside.sum() > 20
+    assert max(original.distance(Point(p)) for p in pts[inside]) < 0.01
+    assert not torch.equal(rot["bev"], data.bev_target[1])
+
+    batch = rotate_batch(data.batch([1]), [rot], [15.0])
+    assert torch.equal(batch["gt_shifts"][0], rot["shifts"])
+    p = torch.tensor([[4.0, 9.0, -1.8, 1.0]], dtype=torch.float64)
+    q = p.clone()
+    q[0, :2] = torch.from_numpy(R @ p[0, :2].numpy())
+    a = p @ data.lidar2img[1].double().transpose(-1, -2)
+    b = q @ batch["lidar2img"][0].double().transpose(-1, -2)
+    torch.testing.assert_close(a, b, rtol=1e-5, atol=1e-3)

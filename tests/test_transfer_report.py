@@ -93,3 +93,20 @@ def test_differences_below_the_tables_resolution_are_ties():
 def test_a_zero_baseline_gives_no_ratio():
     s = summarize(_result({"native": [0.0, 0.0], "render": [0.2, 0.2], "truth": [0.4, 0.4]}))
     assert s["ratios"]["render_over_av2"]["of_means"] is None
+
+
+def test_each_decoding_has_its_own_tables_and_verdict():
+    """The vector head's and the segmentation-traced scores are summarised apart: here the ordering
+    holds on one and fails on the other, and the printed tables say which is which."""
+    r = _result({"native": [0.1, 0.1], "render": [0.2, 0.2], "truth": [0.4, 0.4]})
+    r["config"]["sets"] = ["native", "render", "truth"]
+    for run in r["runs"].values():  # the traced decoding ranks AV2 first
+        run["eval_seg"] = _eval({"native": 0.3, "render": 0.2, "truth": 0.1}[run["set"]])
+    vector, seg = summarize(r), summarize(r, "eval_seg")
+    assert vector["verdict"]["oracle_gt_render_gt_av2"]["on_means"]
+    assert not seg["verdict"]["oracle_gt_render_gt_av2"]["on_means"]
+    assert seg["table1"]["native"]["mAP"]["mean"] == pytest.approx(0.75 * 0.3)
+    text = format_tables({**r, **vector, "seg_decoded": seg, "prior_only": {}})
+    head, traced = text.split("### Decoded by polylines traced from the BEV segmentation")
+    assert "### Decoded by the vector head" in head and "oracle > nuAV2 (render) > AV2: holds" in head
+    assert "oracle > nuAV2 (render) > AV2: does NOT hold" in traced

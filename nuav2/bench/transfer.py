@@ -26,7 +26,8 @@ import torch
 
 from nuav2.atomic import atomic_write_json
 from nuav2.bench.transfer_config import TransferConfig
-from nuav2.bench.transfer_data import prepare_data, test_source, train_source
+from nuav2.bench.transfer_data import prepare_data, test_source
+from nuav2.bench.transfer_jobs import RunJob, run_jobs, train_tensors
 from nuav2.mapping import (
     MapTensors,
     TrainConfig,
@@ -34,6 +35,7 @@ from nuav2.mapping import (
     load_map_tensors,
     load_model,
     predict,
+    predict_from_seg,
     score_in_process,
     score_with_nuav2_eval,
     train,
@@ -43,12 +45,16 @@ from nuav2.mapping import (
 log = logging.getLogger(__name__)
 
 RESULT_FILE = "transfer.json"
-EVAL_FILE = "eval.json"
-PRED_FILE = "predictions.json"
+# per decoding of a model: its MapTR result file and the nuav2 eval result on it
+DECODINGS = {
+    "vector": ("predictions.json", "eval.json"),  # the vector head (MapTR's decoding)
+    "seg": ("predictions_seg.json", "eval_seg.json"),  # polylines traced from the BEV segmentation
+}
+EVAL_KEYS = ("ap", "class_mean_ap", "map_per_threshold", "mAP", "num_gts", "num_preds", "n_samples")
 _CURVE_KEYS = ("mAP", "class_mean_ap", "map_per_threshold")
 
 
-def _train_config(cfg: TransferConfig, steps: int, seed: int, eval_points: int) -> TrainConfig:
+def train_config(cfg: TransferConfig, steps: int, seed: int, eval_points: int) -> TrainConfig:
     return TrainConfig(
         steps=steps,
         batch_size=cfg.batch_size,
@@ -75,8 +81,10 @@ class TestSet:
         self.gts = gt_vectors_for_split(self.dataroot, cfg.version, self.split, patch=tuple(cfg.model.patch))
 
     def curve_point(self, model) -> dict:
+        """Both decodings' scores (``seg_mAP``: traced from the BEV segmentation)."""
         r = score_in_process(predict(model, self.data), self.gts, self.cfg.model.classes)
-        return {k: r[k] for k in _CURVE_KEYS}
+        seg = score_in_process(predict_from_seg(model, self.data), self.gts, self.cfg.model.classes)
+        return {**{k: r[k] for k in _CURVE_KEYS}, "seg_mAP": seg["mAP"]}
 
     def blank(self) -> MapTensors:
         """The test set with every image a flat grey: what a model predicts from its prior alone."""
@@ -97,20 +105,26 @@ def run_and_score(
         "run %s: %d keyframes, %d steps%s", name, len(data), tcfg.steps, f", from {init}" if init else ""
     )
     info = train(cfg.model, tcfg, data, run_dir, init_weights=init, evaluator=test.curve_point)
-    eval_path = run_dir / EVAL_FILE
-    result = json.loads(eval_path.read_text()) if eval_path.is_file() else {}
-    if result.get("run_fingerprint") != info["fingerprint"]:
-        preds = predict(load_model(run_dir), test.data)
-        pred_path = write_results(run_dir / PRED_FILE, preds, cfg.model.classes, {"run": name})
-        result = score_with_nuav2_eval(
-            pred_path, test.dataroot, cfg.version, test.split, cfg.model.classes, eval_path
-        )
-        result["run_fingerprint"] = info["fingerprint"]
-        atomic_write_json(eval_path, result, indent=1)
-    if "ap" not in result.get("bev_seg", {}):  # the diagnostic, not part of nuav2 eval; added to older evals
-        result["bev_seg"] = bev_seg_scores(load_model(run_dir), test.data)
-        atomic_write_json(eval_path, result, indent=1)
-    final_curve = info["curve"][-1]["mAP"] if info["curve"] else None
+    results = {}
+    for decoding, (pred_file, eval_file) in DECODINGS.items():
+        eval_path = run_dir / eval_file
+        result = json.loads(eval_path.read_text()) if eval_path.is_file() else {}
+        if result.get("run_fingerprint") != info["fingerprint"]:
+            model = load_model(run_dir)
+            preds = predict(model, test.data) if decoding == "vector" else predict_from_seg(model, test.data)
+            pred_path = write_results(
+                run_dir / pred_file, preds, cfg.model.classes, {"run": name, "decoding": decoding}
+            )
+            result = score_with_nuav2_eval(
+                pred_path, test.dataroot, cfg.version, test.split, cfg.model.classes, eval_path
+            )
+            result["run_fingerprint"] = info["fingerprint"]
+            torch.set_num_threads(tcfg.threads)  # nuav2 eval's numba kernels reset it (see mapping.train)
+            if decoding == "vector":  # the diagnostic, not part of nuav2 eval
+                result["bev_seg"] = bev_seg_scores(model, test.data)
+            atomic_write_json(eval_path, result, indent=1)
+        results[decoding] = result
+    last = info["curve"][-1] if info["curve"] else None
     return {
         "name": name,
         "run_dir": str(run_dir),
@@ -122,35 +136,26 @@ def run_and_score(
         "curve": info["curve"],
         "elapsed": info["elapsed"],
         "load_avg": info["load_avg"],
-        "eval": {
-            k: result[k]
-            for k in ("ap", "class_mean_ap", "map_per_threshold", "mAP", "num_gts", "num_preds", "n_samples")
-        },
-        "bev_seg": result["bev_seg"],
-        # the in-process curve's last point and the CLI's score must agree (same function, same file)
-        "eval_matches_curve": final_curve is None or abs(final_curve - result["mAP"]) < 1e-9,
+        "eval": {k: results["vector"][k] for k in EVAL_KEYS},
+        "eval_seg": {k: results["seg"][k] for k in EVAL_KEYS},
+        "bev_seg": results["vector"]["bev_seg"],
+        # the in-process curve's last point and the CLI's scores must agree (same functions, same files)
+        "eval_matches_curve": last is None
+        or (
+            abs(last["mAP"] - results["vector"]["mAP"]) < 1e-9
+            and abs(last["seg_mAP"] - results["seg"]["mAP"]) < 1e-9
+        ),
     }
 
 
-def run_table1(cfg: TransferConfig, out: Path, test: TestSet) -> dict[str, dict]:
-    runs = {}
-    for name in cfg.sets:
-        root, split = train_source(cfg, out, name)
-        data = load_map_tensors(root, cfg.version, split, cfg.model, cache_dir=out / "cache")
-        for seed in cfg.seeds:
-            key = f"{name}-s{seed}"
-            runs[key] = {
-                "set": name,
-                **run_and_score(
-                    cfg,
-                    key,
-                    out / "runs" / key,
-                    data,
-                    _train_config(cfg, cfg.steps, seed, cfg.eval_points),
-                    test,
-                ),
-            }
-    return runs
+def table1_jobs(cfg: TransferConfig) -> list[RunJob]:
+    """One run per training set and seed (the AV2-rig runs, dearest, first: the pool ends balanced)."""
+    order = sorted(cfg.sets, key=lambda name: name != "native")
+    return [
+        RunJob(f"{name}-s{seed}", name, cfg.steps, seed, cfg.eval_points, tags=(("set", name),))
+        for name in order
+        for seed in cfg.seeds
+    ]
 
 
 def prior_only(cfg: TransferConfig, out: Path, test: TestSet) -> dict:
@@ -158,31 +163,30 @@ def prior_only(cfg: TransferConfig, out: Path, test: TestSet) -> dict:
     res = {}
     for seed in cfg.seeds:
         model = load_model(out / "runs" / f"truth-s{seed}")
-        r = score_in_process(predict(model, test.blank()), test.gts, cfg.model.classes)
-        res[f"truth-s{seed}"] = {k: r[k] for k in _CURVE_KEYS}
+        blank = test.blank()
+        r = score_in_process(predict(model, blank), test.gts, cfg.model.classes)
+        seg = score_in_process(predict_from_seg(model, blank), test.gts, cfg.model.classes)
+        res[f"truth-s{seed}"] = {**{k: r[k] for k in _CURVE_KEYS}, "seg_mAP": seg["mAP"]}
     return res
 
 
-def run_table2(cfg: TransferConfig, out: Path, test: TestSet) -> dict[str, dict]:
-    runs = {}
-    root, split = train_source(cfg, out, "truth")
-    for frac in cfg.fractions:
-        data = load_map_tensors(
-            root, cfg.version, split, cfg.model, fraction=frac, seed=cfg.subset_seed, cache_dir=out / "cache"
+def table2_jobs(cfg: TransferConfig) -> list[RunJob]:
+    """Per fraction of the oracle set and seed: from scratch, and from the nuAV2 run of that seed."""
+    return [
+        RunJob(
+            f"ft{round(frac * 100):g}-{arm}-s{seed}",
+            "truth",
+            cfg.finetune_steps,
+            seed,
+            2,
+            fraction=frac,
+            init=f"{cfg.pretrain_set}-s{seed}" if arm == "pretrained" else None,
+            tags=(("fraction", frac), ("arm", arm)),
         )
-        for seed in cfg.seeds:
-            tcfg = _train_config(cfg, cfg.finetune_steps, seed, 2)
-            for arm in ("scratch", "pretrained"):
-                init = (
-                    out / "runs" / f"{cfg.pretrain_set}-s{seed}" / "model.pt" if arm == "pretrained" else None
-                )
-                key = f"ft{round(frac * 100):g}-{arm}-s{seed}"
-                runs[key] = {
-                    "fraction": frac,
-                    "arm": arm,
-                    **run_and_score(cfg, key, out / "runs" / key, data, tcfg, test, init),
-                }
-    return runs
+        for frac in cfg.fractions
+        for seed in cfg.seeds
+        for arm in ("scratch", "pretrained")
+    ]
 
 
 def run_transfer(
@@ -204,8 +208,14 @@ def run_transfer(
     data_info = prepare_data(cfg, out, progress)
     t_data = time.perf_counter() - t0
     test = TestSet(cfg, out)
-    table1 = run_table1(cfg, out, test)
-    table2 = run_table2(cfg, out, test) if cfg.fractions else {}
+    for name in cfg.sets:  # fill the tensor cache here, once, before workers read it
+        train_tensors(cfg, out, name)
+    for frac in cfg.fractions:
+        train_tensors(cfg, out, "truth", frac)
+    t1_jobs, t2_jobs = table1_jobs(cfg), table2_jobs(cfg)
+    runs = run_jobs(cfg, out, t1_jobs + t2_jobs, test)
+    table1 = {j.key: runs[j.key] for j in t1_jobs}
+    table2 = {j.key: runs[j.key] for j in t2_jobs}
     result = {
         "benchmark": "transfer",
         "command": command,
@@ -230,6 +240,7 @@ def run_transfer(
         },
     }
     result.update(summarize(result))
+    result["seg_decoded"] = summarize(result, "eval_seg")
     if figures:
         result["figures"] = write_figures(result, out, test)
     atomic_write_json(out / RESULT_FILE, result, indent=1)

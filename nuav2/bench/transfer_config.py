@@ -1,12 +1,14 @@
 """What ``nuav2 bench transfer`` builds and trains: worlds, conversions, runs (three sizes).
 
-- ``full``: the benchmark (not yet run; estimated 4-5 h on 2 cores, docs/transfer.md): 20 training
-  worlds and 6 test worlds of 1.5 s, four training sets, two training seeds, fine-tuning on
-  5 / 10 / 25 % of the oracle training set (1, 2 and 5 of its 20 scenes)
-  from scratch and from the nuAV2 model.
-- ``quick``: the same pipeline smaller: 4 + 2 worlds, 200-step runs (docs/transfer.md has its
-  measured time).
+- ``full``: the benchmark (about 3 h on 2 cores, measured in docs/transfer.md): 24 training worlds
+  and 6 test worlds of 1 s (10 keyframes each), four training sets, two training seeds, 1200-step
+  runs, fine-tuning on 5 / 10 / 25 % of the oracle training set (1, 2 and 6 of its 24 scenes)
+  from scratch and from the nuAV2 model, 400 steps each.
+- ``quick``: the same pipeline smaller (under 30 min): 6 + 2 worlds, 250-step runs.
 - ``smoke``: plumbing only (CI): 1 + 1 tiny worlds, no render mode, a few steps.
+
+Training runs go two at a time in worker processes with one torch thread each (two runs keep
+both cores busy, one 2-thread run about 1.1), conversions two logs at a time.
 
 Train and test worlds never share a seed, and they lie in different cities (the test worlds are
 a held-out city, as in Lilja et al.'s far-extrapolation folds), so no test keyframe is near a
@@ -45,9 +47,9 @@ PAPER_TABLE2 = {  # MapGS Table 2: nuScenes fraction -> (scratch, nuAV2-pretrain
 class TransferConfig:
     size: str = "full"
     preset: str = "medium"  # synthetic realism preset (nuav2.synth.PRESETS); "easy" = the original world
-    train_worlds: int = 20
+    train_worlds: int = 24
     test_worlds: int = 6
-    seconds: float = 1.5  # log length: 15 keyframes at 10 Hz
+    seconds: float = 1.0  # log length: 10 keyframes at 10 Hz (more, shorter worlds: docs/transfer.md)
     synth_image_scale: float = 0.125  # AV2 cameras at 1/8 (256 x 194)
     train_seed0: int = 1000
     test_seed0: int = 9000
@@ -60,14 +62,16 @@ class TransferConfig:
     sets: tuple[str, ...] = TABLE1_SETS
     pretrain_set: str = "render"  # nuAV2: what Table 2 pre-trains on
     seeds: tuple[int, ...] = (0, 1)
-    steps: int = 2000
-    eval_points: int = 5  # learning-curve evaluations per run (the last one at the final step)
+    steps: int = 1200
+    eval_points: int = 4  # learning-curve evaluations per run (the last one at the final step)
     fractions: tuple[float, ...] = (0.05, 0.10, 0.25)
     subset_seed: int = 0  # which scenes form each fraction (nested subsets, one draw for all runs)
-    finetune_steps: int = 600
+    finetune_steps: int = 400
     batch_size: int = 2
     lr: float = 2e-3
-    threads: int = 2
+    threads: int = 1  # torch threads per training run
+    workers: int = 2  # training runs at once (worker processes; 1: in the main process)
+    rotations_deg: tuple[float, ...] = (-20.0, -10.0, 10.0, 20.0)  # BEV rotation augmentation angles
     version: str = "v1.0-nuav2"
     model: MapModelConfig = field(default_factory=MapModelConfig)
 
@@ -92,6 +96,8 @@ class TransferConfig:
             raise ValueError(
                 "train and test worlds must lie in different cities (geo-disjoint by construction)"
             )
+        if self.workers < 1 or self.threads < 1:
+            raise ValueError(f"workers and threads must be >= 1, got {self.workers}, {self.threads}")
         if any(not 0 < f <= 1 for f in self.fractions):
             raise ValueError(f"fractions must be in (0, 1], got {self.fractions}")
 
@@ -102,12 +108,11 @@ class TransferConfig:
         elif size == "quick":
             base = TransferConfig(
                 size="quick",
-                train_worlds=4,
+                train_worlds=6,
                 test_worlds=2,
-                seconds=1.5,
-                steps=200,
+                steps=250,
                 eval_points=2,
-                finetune_steps=60,
+                finetune_steps=80,
                 fractions=(0.25, 0.5),
             )
         elif size == "smoke":

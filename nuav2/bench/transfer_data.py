@@ -67,34 +67,51 @@ def world_specs(cfg: TransferConfig) -> list[WorldSpec]:
     return train + test
 
 
-def generate_worlds(cfg: TransferConfig, worlds_dir: Path) -> list[dict]:
-    """Write every world's AV2 log (skipping logs already there); returns one record per world."""
+def _generate_one(worlds_dir: Path, spec: WorldSpec, cfg: TransferConfig) -> dict:
+    """Write one world's AV2 log (a worker process's job); its wall and CPU time."""
     from nuav2.synth import generate_log
-    from nuav2.synth.world import build_world, clear_world_cache
+    from nuav2.synth.world import clear_world_cache
 
-    out = []
-    for spec in world_specs(cfg):
-        scfg = synth_config(cfg, spec)
-        log_id = build_world(spec.seed, scfg).log_id
-        log_dir = worlds_dir / spec.split / log_id
-        t0, c0 = time.perf_counter(), time.process_time()
-        fresh = not log_dir.is_dir()
-        if fresh:
-            generate_log(worlds_dir, spec.seed, scfg, spec.split)
-        clear_world_cache()
-        out.append(
+    t0, c0 = time.perf_counter(), time.process_time()
+    generate_log(worlds_dir, spec.seed, synth_config(cfg, spec), spec.split)
+    clear_world_cache()
+    return {"wall_s": time.perf_counter() - t0, "cpu_s": time.process_time() - c0}
+
+
+def generate_worlds(cfg: TransferConfig, worlds_dir: Path) -> list[dict]:
+    """Write every world's AV2 log that is not there yet (``cfg.workers`` at a time); returns one
+    record per world, in ``world_specs`` order."""
+    from nuav2.synth.world import world_log_id
+
+    specs = world_specs(cfg)
+    records = []
+    for spec in specs:
+        log_id = world_log_id(spec.seed, synth_config(cfg, spec))
+        records.append(
             {
                 "seed": spec.seed,
                 "split": "train" if spec.split == "train" else "test",
                 "layout": spec.layout,
                 "city": spec.city,
                 "log_id": log_id,
-                "generated": fresh,
-                "wall_s": time.perf_counter() - t0,
-                "cpu_s": time.process_time() - c0,
+                "generated": not (worlds_dir / spec.split / log_id).is_dir(),
+                "wall_s": 0.0,
+                "cpu_s": 0.0,
             }
         )
-    return out
+    todo = [(spec, rec) for spec, rec in zip(specs, records) if rec["generated"]]
+    if cfg.workers <= 1 or len(todo) <= 1:
+        times = [_generate_one(worlds_dir, spec, cfg) for spec, _ in todo]
+    else:
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor
+
+        ctx = multiprocessing.get_context("spawn")
+        with ProcessPoolExecutor(min(cfg.workers, len(todo)), mp_context=ctx) as pool:
+            times = list(pool.map(_generate_one, *zip(*[(worlds_dir, spec, cfg) for spec, _ in todo])))
+    for (_, rec), t in zip(todo, times):
+        rec.update(t)
+    return records
 
 
 def convert_set(cfg: TransferConfig, name: str, worlds_dir: Path, db_dir: Path, progress: bool) -> dict:
@@ -109,6 +126,7 @@ def convert_set(cfg: TransferConfig, name: str, worlds_dir: Path, db_dir: Path, 
         scale=cfg.target_scale,
         recon_preset=cfg.recon_preset,
         show_progress=progress,
+        workers=cfg.workers,  # logs in parallel processes (not part of the shards' fingerprint)
     )
     t0, c0 = time.perf_counter(), time.process_time()
     report = convert_av2(src, db_dir, opts)

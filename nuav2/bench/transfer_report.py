@@ -33,16 +33,16 @@ def _stats(values: list[float]) -> dict:
     }
 
 
-def _aggregate(runs: list[dict], classes: list[str]) -> dict:
-    thr = list(runs[0]["eval"]["ap"][classes[0]])
+def _aggregate(runs: list[dict], classes: list[str], key: str = "eval") -> dict:
+    thr = list(runs[0][key]["ap"][classes[0]])
     return {
         "n_seeds": len(runs),
         "keyframes": runs[0]["keyframes"],
         "scenes": runs[0]["scenes"],
-        "mAP": _stats([r["eval"]["mAP"] for r in runs]),
+        "mAP": _stats([r[key]["mAP"] for r in runs]),
         "bev_seg_ap": _stats([r["bev_seg"]["ap"] for r in runs]),
-        "class_mean_ap": {c: _stats([r["eval"]["class_mean_ap"][c] for r in runs]) for c in classes},
-        "ap": {c: {t: _stats([r["eval"]["ap"][c][t] for r in runs]) for t in thr} for c in classes},
+        "class_mean_ap": {c: _stats([r[key]["class_mean_ap"][c] for r in runs]) for c in classes},
+        "ap": {c: {t: _stats([r[key]["ap"][c][t] for r in runs]) for t in thr} for c in classes},
     }
 
 
@@ -50,13 +50,15 @@ def _ratio(a: float, b: float) -> float | None:
     return a / b if b > 0 else None
 
 
-def summarize(result: dict) -> dict:
+def summarize(result: dict, eval_key: str = "eval") -> dict:
+    """Tables, ratios and verdicts of one decoding: ``eval_key`` is the runs' ``nuav2 eval`` result to read
+    (``eval``: the vector head, ``eval_seg``: traced from the BEV segmentation)."""
     cfg = result["config"]
     classes = list(cfg["model"]["classes"])
     runs = result["runs"]
     sets = [s for s in cfg["sets"] if any(r.get("set") == s for r in runs.values())]
-    table1 = {s: _aggregate([r for r in runs.values() if r.get("set") == s], classes) for s in sets}
-    by_seed = {s: {r["seed"]: r["eval"]["mAP"] for r in runs.values() if r.get("set") == s} for s in sets}
+    table1 = {s: _aggregate([r for r in runs.values() if r.get("set") == s], classes, eval_key) for s in sets}
+    by_seed = {s: {r["seed"]: r[eval_key]["mAP"] for r in runs.values() if r.get("set") == s} for s in sets}
     ratios = {}
     for nu in ("render", "warp"):
         if nu not in table1:
@@ -76,7 +78,7 @@ def summarize(result: dict) -> dict:
             for arm in ("scratch", "pretrained")
         }
         if all(rows.values()):
-            table2[f"{frac:g}"] = {arm: _aggregate(v, classes) for arm, v in rows.items()}
+            table2[f"{frac:g}"] = {arm: _aggregate(v, classes, eval_key) for arm, v in rows.items()}
             table2[f"{frac:g}"]["paper_mAP"] = PAPER_TABLE2.get(frac)
     return {
         "table1": table1,
@@ -137,7 +139,21 @@ def _fmt_ratio(r: dict, percent: bool) -> str:
     return f"{one(r['of_means'])} (per seed: {seeds}; paper: {paper})"
 
 
+DECODING_LABELS = {
+    "vector": "the vector head",
+    "seg": "polylines traced from the BEV segmentation",
+}
+
+
 def format_tables(result: dict) -> str:
+    """Both decodings' tables and verdicts (the seg one when the result has it: ``seg_decoded``)."""
+    text = _format_decoding(result, "vector")
+    if result.get("seg_decoded"):
+        text += "\n\n" + _format_decoding({**result, **result["seg_decoded"]}, "seg")
+    return text
+
+
+def _format_decoding(result: dict, decoding: str) -> str:
     cfg = result["config"]
     classes = list(cfg["model"]["classes"])
     t1 = result["table1"]
@@ -148,6 +164,8 @@ def format_tables(result: dict) -> str:
     )
     sep = "|" + "---|" * (len(classes) + 4)
     lines = [
+        f"### Decoded by {DECODING_LABELS[decoding]}",
+        "",
         f"Table 1 shape: AP x100 on the test worlds' truth in the {cfg['target_rig']} rig "
         f"(mean ± std over seeds {list(cfg['seeds'])}; AP per class = mean over "
         f"{', '.join(map(str, result['runs'][next(iter(result['runs']))]['eval']['ap'][classes[0]]))} m)",
@@ -184,7 +202,7 @@ def format_tables(result: dict) -> str:
             + " |"
         )
     if result.get("prior_only"):
-        vals = [v["mAP"] for v in result["prior_only"].values()]
+        vals = [v["mAP" if decoding == "vector" else "seg_mAP"] for v in result["prior_only"].values()]
         lines += [
             "",
             f"Prior only (oracle models on flat grey test images): mAP {100 * np.mean(vals):.1f} "
@@ -284,10 +302,19 @@ def plot_curves(result: dict, path: Path) -> Path:
         if not curves:
             continue
         steps = [p["step"] for p in curves[0]]
-        vals = np.array([[p["mAP"] * 100 for p in c] for c in curves if len(c) == len(steps)])
-        ax.plot(steps, vals.mean(0), marker="o", label=SET_LABELS[s])
-        ax.fill_between(steps, vals.min(0), vals.max(0), alpha=0.2)
-    ax.set(xlabel="training step", ylabel="mAP x100 (test worlds, target rig)", title="Table 1 runs")
+        colour = None
+        for key, style, label in (("mAP", "-", ""), ("seg_mAP", "--", " (seg-traced)")):
+            if any(key not in p for c in curves for p in c):
+                continue
+            vals = np.array([[p[key] * 100 for p in c] for c in curves if len(c) == len(steps)])
+            line = ax.plot(steps, vals.mean(0), style, marker="o", color=colour, label=SET_LABELS[s] + label)
+            colour = line[0].get_color()
+            ax.fill_between(steps, vals.min(0), vals.max(0), alpha=0.15, color=colour)
+    ax.set(
+        xlabel="training step",
+        ylabel="mAP x100 (test worlds, target rig)",
+        title="Table 1 runs (solid: vector head, dashed: seg-traced)",
+    )
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     if result["table2"]:

@@ -38,6 +38,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--train-worlds", type=int, default=None)
     p.add_argument("--test-worlds", type=int, default=None)
     p.add_argument("--recon-preset", default=None, help="render mode's reconstruction preset (default: fast)")
+    p.add_argument(
+        "--workers",
+        type=int,
+        default=None,
+        help="training runs at once, each in its own process with one torch thread (default: 2)",
+    )
     p.add_argument("--no-figures", action="store_true", help="skip curves.png and the viz pictures")
     p.add_argument("--json", action="store_true", help="print the result JSON instead of the tables")
     p.set_defaults(func=run)
@@ -59,6 +65,7 @@ def run(args: argparse.Namespace) -> int:
             "train_worlds": args.train_worlds,
             "test_worlds": args.test_worlds,
             "recon_preset": args.recon_preset,
+            "workers": args.workers,
         }.items()
         if v is not None
     }

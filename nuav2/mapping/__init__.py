@@ -16,6 +16,7 @@ from nuav2.mapping.model import MapModel
 from nuav2.mapping.predict import (
     bev_seg_scores,
     predict,
+    predict_from_seg,
     score_in_process,
     score_with_nuav2_eval,
     write_results,
@@ -32,6 +33,7 @@ __all__ = [
     "load_map_tensors",
     "load_model",
     "predict",
+    "predict_from_seg",
     "score_in_process",
     "score_with_nuav2_eval",
     "train",

@@ -1,4 +1,7 @@
-"""Training augmentation: photometric jitter per camera, and random mirroring of the BEV frame.
+"""Training augmentation: photometric jitter per camera, random rotation and mirroring of the BEV frame.
+
+The rotation (``random_rotation``) picks, per sample, one of the angles whose GT the training
+tensors carry (:mod:`nuav2.mapping.rotations`) or none.
 
 The BEV mirror (as in BEVDet's BEV-space augmentation) flips the LIDAR_TOP frame's x and / or y
 axis: ``lidar2img`` becomes ``lidar2img @ F`` with ``F = diag(sx, sy, 1, 1)``, so every pixel's
@@ -53,3 +56,14 @@ def bev_flip(batch: dict, gen: torch.Generator) -> dict:
     """``mirror`` with signs drawn at random (each axis flipped with probability 1/2)."""
     signs = torch.where(torch.rand(len(batch["gt_shifts"]), 2, generator=gen) < 0.5, -1.0, 1.0)
     return mirror(batch, signs)
+
+
+def random_rotation(batch: dict, data, index: list[int], gen: torch.Generator) -> dict:
+    """Each sample in its frame rotated by one of ``data.meta["rotations_deg"]`` or unrotated, uniformly
+    (``index``: the samples' positions in ``data``)."""
+    from nuav2.mapping.rotations import rotate_batch
+
+    angles = data.meta["rotations_deg"]
+    pick = torch.randint(0, len(angles) + 1, (len(index),), generator=gen).tolist()  # 0: unrotated
+    rotated = [data.rotated[i][k - 1] if k else None for i, k in zip(index, pick)]
+    return rotate_batch(batch, rotated, [angles[k - 1] if k else 0.0 for k in pick])

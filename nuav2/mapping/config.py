@@ -14,6 +14,8 @@ from dataclasses import asdict, dataclass, field, fields
 
 from nuav2.maptr.vectorize import CLASSES, DEFAULT_PATCH
 
+FEAT_STRIDES = (4, 8)  # where the backbone's features may leave (its FPN levels)
+
 
 def _check_positive(obj, names: tuple[str, ...]) -> None:
     for name in names:
@@ -31,7 +33,8 @@ class MapModelConfig:
     patch: tuple[float, float] = DEFAULT_PATCH  # (forward, right) metres, LIDAR_TOP frame
     input_focal_px: float = 100.0  # images are resized so their median focal length is this
     stem_channels: int = 24
-    stage_channels: tuple[int, ...] = (32, 64, 128)  # strides 4, 8, 16; features leave at stride 8
+    stage_channels: tuple[int, ...] = (32, 64, 128)  # strides 4, 8, 16
+    feat_stride: int = 8  # image features leave the backbone at stride 4 (a third FPN level) or 8
     feat_channels: int = 64  # image context features lifted into BEV
     depth_min_m: float = 1.0
     depth_max_m: float = 45.0
@@ -45,6 +48,11 @@ class MapModelConfig:
     decoder_layers: int = 3
     decoder_dim: int = 128
     decoder_heads: int = 4
+    # how much of the vector decoder's gradient reaches the BEV features (0: none, 1: all). Early in
+    # training the set loss's gradient (random queries, changing matches) swamps the dense losses
+    # that teach the lift where lines are; measured in docs/transfer.md
+    decoder_grad_scale: float = 0.0
+    decoder_sees_seg: bool = False  # the decoder also samples the BEV segmentation logits (detached)
 
     def __post_init__(self) -> None:
         _check_positive(
@@ -64,6 +72,8 @@ class MapModelConfig:
                 "decoder_heads",
             ),
         )
+        if not 0.0 <= self.decoder_grad_scale <= 1.0:
+            raise ValueError(f"MapModelConfig.decoder_grad_scale {self.decoder_grad_scale} is not in [0, 1]")
         if self.depth_max_m <= self.depth_min_m:
             raise ValueError(f"MapModelConfig.depth_max_m must exceed depth_min_m, got {self.depth_max_m}")
         if self.lift_z_range_m[1] <= self.lift_z_range_m[0]:
@@ -72,6 +82,8 @@ class MapModelConfig:
             raise ValueError("MapModelConfig.decoder_dim must be a multiple of decoder_heads")
         if not self.classes or len(set(self.classes)) != len(self.classes):
             raise ValueError(f"MapModelConfig.classes must be distinct and non-empty, got {self.classes}")
+        if self.feat_stride not in FEAT_STRIDES:
+            raise ValueError(f"MapModelConfig.feat_stride must be in {FEAT_STRIDES}, got {self.feat_stride}")
         if self.num_points < 2:
             raise ValueError("MapModelConfig.num_points must be >= 2")
 
@@ -118,6 +130,7 @@ class TrainConfig:
     eval_every: int = 500  # 0: evaluate only at the end
     checkpoint_every: int = 250
     bev_flip: bool = True  # mirror the BEV frame at random (see nuav2.mapping.augment)
+    bev_rotate: bool = True  # rotate the BEV frame by one of the data's rotations_deg (or not) at random
     loss: LossConfig = field(default_factory=LossConfig)
 
     def __post_init__(self) -> None:

@@ -20,13 +20,12 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from nuav2.mapping.backbone import STRIDE
 from nuav2.mapping.config import MapModelConfig, fingerprint
 from nuav2.mapping.targets import bev_targets, depth_targets, pv_targets
 
 log = logging.getLogger(__name__)
 
-DATA_FORMAT = 2  # bump when what is cached changes
+DATA_FORMAT = 3  # bump when what is cached changes
 
 
 @dataclass
@@ -43,6 +42,8 @@ class MapTensors:
     pv_target: torch.Tensor  # (S, N, K, h, w) uint8
     depth_target: torch.Tensor  # (S, N, h, w) int16 LiDAR depth bin per feature pixel, -1: none
     meta: dict = field(default_factory=dict)
+    # per sample, per angle of meta["rotations_deg"]: that rotated frame's GT (nuav2.mapping.rotations)
+    rotated: list[list[dict]] = field(default_factory=list)
 
     def __len__(self) -> int:
         return len(self.tokens)
@@ -97,8 +98,14 @@ def load_map_tensors(
     fraction: float | None = None,
     seed: int = 0,
     cache_dir: str | Path | None = None,
+    rotations_deg: tuple[float, ...] = (),
 ) -> MapTensors:
-    """Read ``split`` (optionally a seeded scene-level ``fraction``) of a dataroot into tensors."""
+    """Read ``split`` (optionally a seeded scene-level ``fraction``) of a dataroot into tensors.
+
+    ``rotations_deg``: also the GT of every keyframe in its LIDAR_TOP frame rotated by each of these
+    angles (a training set's rotation augmentation, :mod:`nuav2.mapping.rotations`).
+    """
+    from nuav2.mapping.rotations import rotated_targets
     from nuav2.maptr.dataset import MapSampleDataset
 
     dataroot = Path(dataroot)
@@ -113,8 +120,10 @@ def load_map_tensors(
         cfg.num_points,
         list(cfg.patch),
         cfg.input_focal_px,
+        cfg.feat_stride,
         cfg.bev_cell_m,
         [cfg.depth_min_m, cfg.depth_max_m, cfg.depth_bins],
+        [float(a) for a in rotations_deg],
         _tables_key(dataroot, version),
     )
     cache = Path(cache_dir) / f"maptensors-{key}.pt" if cache_dir else None
@@ -142,7 +151,7 @@ def load_map_tensors(
     img = torch.zeros((len(items), n_cam.pop(), 3, H, W), dtype=torch.uint8)
     for i, it in enumerate(items):
         img[i, :, :, : it["img"].shape[2], : it["img"].shape[3]] = it["img"]
-    feat_hw = (math.ceil(H / STRIDE), math.ceil(W / STRIDE))
+    feat_hw = (math.ceil(H / cfg.feat_stride), math.ceil(W / cfg.feat_stride))
     data = MapTensors(
         tokens=[it["sample_token"] for it in items],
         img=img,
@@ -189,7 +198,11 @@ def load_map_tensors(
             "scenes": list(ds.scene_names),
             "cameras": items[0]["cam_names"],
             "image_hw": [H, W],
+            "rotations_deg": [float(a) for a in rotations_deg],
         },
+        rotated=[[rotated_targets(ds, i, a, cfg) for a in rotations_deg] for i in range(len(items))]
+        if rotations_deg
+        else [],
     )
     if cache is not None:
         cache.parent.mkdir(parents=True, exist_ok=True)

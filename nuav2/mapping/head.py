@@ -68,6 +68,14 @@ class DecoderLayer(nn.Module):
         nn.init.zeros_(self.offset[-1].weight)
         nn.init.zeros_(self.offset[-1].bias)
 
+    def _offsets(self, pf: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
+        """``self.offset`` of [point feature, query] per point, with the first layer split: its query
+        half is computed once per query, not once per point (20x less work, the same function)."""
+        first, rest = self.offset[0], self.offset[1:]
+        k = pf.shape[-1]
+        h = F.linear(pf, first.weight[:, :k], first.bias) + F.linear(q, first.weight[:, k:]).unsqueeze(2)
+        return rest(h)
+
     def forward(
         self,
         q: torch.Tensor,
@@ -87,7 +95,7 @@ class DecoderLayer(nn.Module):
         qp = q + self.pos(pts.flatten(2))
         q = self.norm_cross(q + self.cross(qp, memory, memory, need_weights=False)[0])
         q = self.norm3(q + self.ffn(q))
-        delta = self.offset(torch.cat([pf, q.unsqueeze(2).expand(-1, -1, P, -1)], -1))
+        delta = self._offsets(pf, q)
         new_pts = torch.sigmoid(inverse_sigmoid(pts) + delta)
         return q, new_pts, self.cls(q)
 

@@ -21,10 +21,12 @@ class MapModel(nn.Module):
         super().__init__()
         self.cfg = cfg
         k = len(cfg.classes)
-        self.backbone = ImageBackbone(cfg.stem_channels, cfg.stage_channels, cfg.feat_channels)
+        self.backbone = ImageBackbone(
+            cfg.stem_channels, cfg.stage_channels, cfg.feat_channels, cfg.feat_stride
+        )
         self.lift = LiftSplat(cfg, cfg.feat_channels)
         self.bev_encoder = BEVEncoder(cfg.feat_channels, cfg.bev_channels)
-        self.decoder = VectorDecoder(cfg, cfg.bev_channels)
+        self.decoder = VectorDecoder(cfg, cfg.bev_channels + (k if cfg.decoder_sees_seg else 0))
         self.bev_seg = nn.Conv2d(cfg.bev_channels, k, 1)
         self.pv_seg = nn.Conv2d(cfg.feat_channels, k, 1)
         prior = -4.6  # sigmoid ~ 1 %: map lines cover few pixels
@@ -40,9 +42,14 @@ class MapModel(nn.Module):
         h, w = feats.shape[-2:]
         bev, depth = self.lift(feats.view(B, N, -1, h, w), lidar2img, img_hw)
         bev = self.bev_encoder(bev)
+        g = self.cfg.decoder_grad_scale
+        to_decoder = bev if g == 1.0 else bev.detach() if g == 0.0 else bev * g + bev.detach() * (1.0 - g)
+        seg = self.bev_seg(bev)
+        if self.cfg.decoder_sees_seg:
+            to_decoder = torch.cat([to_decoder, seg.detach()], 1)
         return {
-            "layers": self.decoder(bev, one2many),
-            "bev_seg": self.bev_seg(bev),
+            "layers": self.decoder(to_decoder, one2many),
+            "bev_seg": seg,
             "pv_seg": self.pv_seg(feats).view(B, N, -1, h, w),
             "depth": depth,
         }

@@ -15,7 +15,6 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from nuav2.mapping.backbone import STRIDE
 from nuav2.mapping.config import MapModelConfig
 from nuav2.viz import densify, ground_points_lidar, project_segments
 
@@ -64,9 +63,10 @@ def pv_targets(
         for c, p in vectors
         if c in index and len(p) >= 2
     ]
-    # Feature pixel j is centred on image pixel STRIDE * j + (STRIDE - 1) / 2 (acts on (uz, vz, z, 1)).
-    off = -(STRIDE - 1) / (2.0 * STRIDE)
-    to_feat = np.array([[1.0 / STRIDE, 0, off, 0], [0, 1.0 / STRIDE, off, 0], [0, 0, 1, 0], [0, 0, 0, 1]])
+    # Feature pixel j is centred on image pixel s * j + (s - 1) / 2 (acts on (uz, vz, z, 1)).
+    s = cfg.feat_stride
+    off = -(s - 1) / (2.0 * s)
+    to_feat = np.array([[1.0 / s, 0, off, 0], [0, 1.0 / s, off, 0], [0, 0, 1, 0], [0, 0, 0, 1]])
     for cam in range(n):
         P = to_feat @ np.asarray(lidar2img[cam], np.float64)
         for k, xyz in lifted:
@@ -92,9 +92,8 @@ def depth_targets(
         keep = (z >= cfg.depth_min_m) & (z < cfg.depth_max_m)
         u, v, z = p[keep, 0] / z[keep], p[keep, 1] / z[keep], z[keep]
         inside = (u >= -0.5) & (v >= -0.5) & (u < img_hw[cam][1] - 0.5) & (v < img_hw[cam][0] - 0.5)
-        cell = (np.floor((v[inside] + 0.5) / STRIDE) * w + np.floor((u[inside] + 0.5) / STRIDE)).astype(
-            np.int64
-        )
+        s = cfg.feat_stride
+        cell = (np.floor((v[inside] + 0.5) / s) * w + np.floor((u[inside] + 0.5) / s)).astype(np.int64)
         np.minimum.at(out[cam], cell, z[inside])
     step = (cfg.depth_max_m - cfg.depth_min_m) / cfg.depth_bins
     bins = np.where(np.isfinite(out), np.floor((out - cfg.depth_min_m) / step), -1)

@@ -24,8 +24,7 @@ import numpy as np
 import torch
 
 from nuav2.atomic import atomic_write_json
-from nuav2.mapping.augment import bev_flip, photometric
-from nuav2.mapping.backbone import STRIDE
+from nuav2.mapping.augment import bev_flip, photometric, random_rotation
 from nuav2.mapping.config import MapModelConfig, TrainConfig, fingerprint
 from nuav2.mapping.data import MapTensors
 from nuav2.mapping.losses import dense_loss, depth_loss, set_loss
@@ -106,8 +105,9 @@ def _loss(model: MapModel, batch: dict, train_cfg: TrainConfig) -> dict[str, tor
             losses[f"{key}_one2many"] = w.one2many_weight * v
     losses["bev_seg"] = w.bev_seg_weight * dense_loss(out["bev_seg"], batch["bev_target"])
     h, w_ = out["pv_seg"].shape[-2:]
-    ys = torch.arange(h).view(1, 1, h, 1) * STRIDE + (STRIDE - 1) / 2
-    xs = torch.arange(w_).view(1, 1, 1, w_) * STRIDE + (STRIDE - 1) / 2
+    s = cfg.feat_stride
+    ys = torch.arange(h).view(1, 1, h, 1) * s + (s - 1) / 2
+    xs = torch.arange(w_).view(1, 1, 1, w_) * s + (s - 1) / 2
     inside = ((ys < batch["img_hw"][..., 0, None, None]) & (xs < batch["img_hw"][..., 1, None, None])).float()
     losses["pv_seg"] = w.pv_seg_weight * dense_loss(out["pv_seg"], batch["pv_target"], inside.unsqueeze(2))
     losses["depth"] = w.depth_weight * depth_loss(out["depth"], batch["depth_target"])
@@ -173,9 +173,12 @@ def train(
             t0, c0 = time.perf_counter(), time.process_time()
             for g in opt.param_groups:
                 g["lr"] = learning_rate(train_cfg, step)
-            batch = data.batch(batch_indices(len(data), train_cfg.batch_size, train_cfg.seed, step))
+            index = batch_indices(len(data), train_cfg.batch_size, train_cfg.seed, step)
+            batch = data.batch(index)
             gen = torch.Generator().manual_seed(train_cfg.seed * 1_000_003 + step)
             batch["img"] = photometric(batch["img"], gen)
+            if train_cfg.bev_rotate and data.rotated:
+                batch = random_rotation(batch, data, index, gen)
             if train_cfg.bev_flip:
                 batch = bev_flip(batch, gen)
             terms = _loss(model, batch, train_cfg)
@@ -205,6 +208,9 @@ def train(
             if step in eval_steps and evaluator is not None:
                 t1 = time.perf_counter()
                 curve.append({"step": step, **evaluator(model)})
+                # the evaluator's numba kernels (OpenMP) reset torch's thread count to the machine's;
+                # left so, a 1-thread run in a busy machine ran 10x slower after its first curve point
+                torch.set_num_threads(train_cfg.threads)
                 elapsed["eval_wall_s"] += time.perf_counter() - t1
             if (
                 train_cfg.checkpoint_every and step % train_cfg.checkpoint_every == 0

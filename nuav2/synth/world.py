@@ -274,6 +274,12 @@ def tilt_on(terrain: Terrain, xy: F64, yaw: F64, back_m: float, wheelbase: float
     return R, (h.mean(1) if centred else z_rear)
 
 
+def world_log_id(seed: int, cfg: SynthConfig) -> str:
+    """The log id of the world of ``seed`` and ``cfg``, without building it (finding logs already written)."""
+    identity = {"seed": seed, "config": cfg.to_dict(), "version": GENERATOR_VERSION}
+    return str(uuid.uuid5(_UUID_NS, json.dumps(identity, sort_keys=True)))
+
+
 def build_world(seed: int = 0, config: SynthConfig | None = None) -> SyntheticWorld:
     """The world for ``seed`` (layout, actors, offsets, timestamps) at ``config``'s scale and realism."""
     cfg = config or SynthConfig()
@@ -340,8 +346,7 @@ def build_world(seed: int = 0, config: SynthConfig | None = None) -> SyntheticWo
         buildings = placement.style_facades(buildings, crng)
     buildings = placement.settle(buildings, terrain, sink_m=0.5)
     sky = make_sky(stream(seed, STREAM_SKY) if cfg.shadows else None)
-    identity = {"seed": seed, "config": cfg.to_dict(), "version": GENERATOR_VERSION}
-    log_id = str(uuid.uuid5(_UUID_NS, json.dumps(identity, sort_keys=True)))
+    log_id = world_log_id(seed, cfg)
     world = SyntheticWorld(seed, cfg, log_id, city_frame, origin, map_layout, world_layout, buildings, actors,
                            ego, timeline, terrain, sky, furniture, plan, name, manoeuvre)
     if len(_CACHE) >= _CACHE_MAX:
