@@ -176,6 +176,8 @@ def test_find_logs(tmp_path, tmp_log):
     b = tmp_log(name="log_b", parent="root/sensor/val")
     c = tmp_log(name="log_c", parent="root/sensor/train")
     (tmp_path / "root/sensor/train/not_a_log").mkdir()
+    # an interrupted atomic write of a log (killed synth run) holds the pose file but is no log
+    tmp_log(name=".log_d.x1y2.partial", parent="root/sensor/train")
     assert find_logs(tmp_path / "root") == [a, c, b]
     assert find_logs(tmp_path / "root/sensor") == [a, c, b]
     assert find_logs(tmp_path / "root/sensor/train") == [a, c]

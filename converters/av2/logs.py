@@ -15,7 +15,10 @@ def is_log_dir(path: Path) -> bool:
 
 
 def _logs_in(split_dir: Path) -> list[Path]:
-    return sorted(p for p in split_dir.iterdir() if p.is_dir() and is_log_dir(p))
+    """Log dirs in ``split_dir``; hidden ones are skipped (an interrupted atomic write leaves a
+    ``.<log id>.<tmp>.partial`` dir that may already hold the pose file)."""
+    return sorted(p for p in split_dir.iterdir()
+                  if p.is_dir() and not p.name.startswith(".") and is_log_dir(p))
 
 
 def find_logs(src: Path) -> list[Path]:
