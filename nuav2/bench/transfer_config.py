@@ -1,6 +1,6 @@
 """What ``nuav2 bench transfer`` builds and trains: worlds, conversions, runs (three sizes).
 
-- ``full``: the benchmark (about 3 h on 2 cores, measured in docs/transfer.md): 24 training worlds
+- ``full``: the benchmark (2 h 04 min on 2 cores, measured in docs/transfer.md): 24 training worlds
   and 6 test worlds of 1 s (10 keyframes each), four training sets, two training seeds, 1200-step
   runs, fine-tuning on 5 / 10 / 25 % of the oracle training set (1, 2 and 6 of its 24 scenes)
   from scratch and from the nuAV2 model, 400 steps each.
