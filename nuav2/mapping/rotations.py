@@ -33,25 +33,7 @@ def rotation_T(deg: float) -> np.ndarray:
 def rotated_targets(dataset, index: int, deg: float, cfg: MapModelConfig) -> dict:
     """Labels, fixed-point ordering variants and BEV target of keyframe ``index`` of a
     ``MapSampleDataset`` in the LIDAR_TOP frame rotated by ``deg``."""
-    from nuav2.maptr.fixed_points import fixed_point_targets
-    from nuav2.maptr.vectorize import MapPatch, global_T_lidar_of_sample
-
-    token = dataset.items[index][0]
-    nusc = dataset.nusc
-    location = nusc.get("log", nusc.get("scene", nusc.get("sample", token)["scene_token"])["log_token"])[
-        "location"
-    ]
-    pose = global_T_lidar_of_sample(nusc, token) @ np.linalg.inv(rotation_T(deg))
-    patch = MapPatch.from_pose(pose, tuple(cfg.patch))
-    vectors = [(c, p) for c, p in dataset.gt.vectorizer(location).vectors(patch) if c in dataset.class_ids]
-    labels, _, shifts = fixed_point_targets(
-        vectors,
-        dataset.class_ids,
-        dataset.num_points,
-        dataset.shift_pattern,
-        half_extent_xy=dataset.half_extent_xy,
-        rng=np.random.default_rng(index),
-    )
+    vectors, labels, _, shifts = dataset.fixed_point_targets(index, np.linalg.inv(rotation_T(deg)))
     return {
         "labels": torch.from_numpy(labels),
         "shifts": torch.from_numpy(shifts).float(),

@@ -94,8 +94,24 @@ class MapSampleDataset(Dataset):
         token, frame_idx = self.items[index]
         return sample_info(self.nusc, token, frame_idx, max_sweeps=0, cameras=self.cameras)
 
-    def vectors(self, index: int) -> Vectors:
-        return self.gt.sample_vectors(self.nusc, self.items[index][0])
+    def vectors(self, index: int, lidar_T_patch: np.ndarray | None = None) -> Vectors:
+        """GT vectors of keyframe ``index`` (every class), in its LIDAR_TOP frame or one moved from it."""
+        return self.gt.sample_vectors(self.nusc, self.items[index][0], lidar_T_patch)
+
+    def fixed_point_targets(
+        self, index: int, lidar_T_patch: np.ndarray | None = None
+    ) -> tuple[Vectors, np.ndarray, np.ndarray, np.ndarray]:
+        """(vectors of this dataset's classes, labels, fixed points, shifts) of keyframe ``index``."""
+        vectors = [(c, p) for c, p in self.vectors(index, lidar_T_patch) if c in self.class_ids]
+        labels, fixed, shifts = fixed_point_targets(
+            vectors,
+            self.class_ids,
+            self.num_points,
+            self.shift_pattern,
+            half_extent_xy=self.half_extent_xy,
+            rng=np.random.default_rng(index),
+        )
+        return vectors, labels, fixed, shifts
 
     def __getitem__(self, index: int) -> dict:
         if not -len(self) <= index < len(self):
@@ -106,15 +122,7 @@ class MapSampleDataset(Dataset):
         S = np.diag([self.image_scale, self.image_scale, 1.0, 1.0])
         intrinsics = np.array([S[:3, :3] @ c["cam_intrinsic"] for c in cams]).reshape(-1, 3, 3)
         projections = np.array([S @ lidar2img(c) for c in cams]).reshape(-1, 4, 4)
-        vectors = [(c, p) for c, p in self.vectors(index) if c in self.class_ids]
-        labels, fixed, shifts = fixed_point_targets(
-            vectors,
-            self.class_ids,
-            self.num_points,
-            self.shift_pattern,
-            half_extent_xy=self.half_extent_xy,
-            rng=np.random.default_rng(index),
-        )
+        vectors, labels, fixed, shifts = self.fixed_point_targets(index)
         item = {
             "sample_token": info["token"],
             "scene_token": info["scene_token"],

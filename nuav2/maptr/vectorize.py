@@ -447,13 +447,17 @@ class MapGT:
             )
         return self._by_location[location]
 
-    def sample_patch(self, nusc, sample_token: str) -> MapPatch:
-        return MapPatch.from_pose(global_T_lidar_of_sample(nusc, sample_token), self.patch)
+    def sample_patch(self, nusc, sample_token: str, lidar_T_patch: np.ndarray | None = None) -> MapPatch:
+        """The keyframe's LIDAR_TOP patch, or (``lidar_T_patch``) a patch in a frame moved from it."""
+        global_T_patch = global_T_lidar_of_sample(nusc, sample_token)
+        if lidar_T_patch is not None:
+            global_T_patch = global_T_patch @ lidar_T_patch
+        return MapPatch.from_pose(global_T_patch, self.patch)
 
-    def sample_vectors(self, nusc, sample_token: str) -> Vectors:
+    def sample_vectors(self, nusc, sample_token: str, lidar_T_patch: np.ndarray | None = None) -> Vectors:
         sample = nusc.get("sample", sample_token)
         location = nusc.get("log", nusc.get("scene", sample["scene_token"])["log_token"])["location"]
-        return self.vectorizer(location).vectors(self.sample_patch(nusc, sample_token))
+        return self.vectorizer(location).vectors(self.sample_patch(nusc, sample_token, lidar_T_patch))
 
 
 def gt_vectors_for_split(
