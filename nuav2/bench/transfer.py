@@ -80,10 +80,12 @@ class TestSet:
         )
         self.gts = gt_vectors_for_split(self.dataroot, cfg.version, self.split, patch=tuple(cfg.model.patch))
 
-    def curve_point(self, model) -> dict:
-        """Both decodings' scores (``seg_mAP``: traced from the BEV segmentation)."""
-        r = score_in_process(predict(model, self.data), self.gts, self.cfg.model.classes)
-        seg = score_in_process(predict_from_seg(model, self.data), self.gts, self.cfg.model.classes)
+    def curve_point(self, model, data: MapTensors | None = None) -> dict:
+        """Both decodings' scores on ``data`` (default: the test set; ``seg_mAP``: traced from the
+        BEV segmentation)."""
+        data = self.data if data is None else data
+        r = score_in_process(predict(model, data), self.gts, self.cfg.model.classes)
+        seg = score_in_process(predict_from_seg(model, data), self.gts, self.cfg.model.classes)
         return {**{k: r[k] for k in _CURVE_KEYS}, "seg_mAP": seg["mAP"]}
 
     def blank(self) -> MapTensors:
@@ -105,12 +107,12 @@ def run_and_score(
         "run %s: %d keyframes, %d steps%s", name, len(data), tcfg.steps, f", from {init}" if init else ""
     )
     info = train(cfg.model, tcfg, data, run_dir, init_weights=init, evaluator=test.curve_point)
-    results = {}
+    results, model = {}, None
     for decoding, (pred_file, eval_file) in DECODINGS.items():
         eval_path = run_dir / eval_file
         result = json.loads(eval_path.read_text()) if eval_path.is_file() else {}
         if result.get("run_fingerprint") != info["fingerprint"]:
-            model = load_model(run_dir)
+            model = load_model(run_dir) if model is None else model
             preds = predict(model, test.data) if decoding == "vector" else predict_from_seg(model, test.data)
             pred_path = write_results(
                 run_dir / pred_file, preds, cfg.model.classes, {"run": name, "decoding": decoding}
@@ -162,11 +164,7 @@ def prior_only(cfg: TransferConfig, out: Path, test: TestSet) -> dict:
     """The oracle models on flat grey test images: how much of their score the map prior alone gives."""
     res = {}
     for seed in cfg.seeds:
-        model = load_model(out / "runs" / f"truth-s{seed}")
-        blank = test.blank()
-        r = score_in_process(predict(model, blank), test.gts, cfg.model.classes)
-        seg = score_in_process(predict_from_seg(model, blank), test.gts, cfg.model.classes)
-        res[f"truth-s{seed}"] = {**{k: r[k] for k in _CURVE_KEYS}, "seg_mAP": seg["mAP"]}
+        res[f"truth-s{seed}"] = test.curve_point(load_model(out / "runs" / f"truth-s{seed}"), test.blank())
     return res
 
 
