@@ -181,6 +181,20 @@ class PoseTable:
         self.timestamps_ns = ts
         self.max_extrapolation_ns = int(max_extrapolation_ns)
         self._quats, self._trans = T_to_quat_trans(poses)
+        self._memo: dict[int, F64] = {}
+
+    def at(self, query_ns: int) -> F64:
+        """(4, 4) pose at one timestamp, memoised (a log's sweep and image times are asked for again and
+        again); read-only, so a caller cannot change the memo."""
+        t = int(query_ns)
+        pose = self._memo.get(t)
+        if pose is None:
+            if len(self._memo) >= 16384:
+                self._memo.clear()
+            pose = self(t)[0]
+            pose.flags.writeable = False
+            self._memo[t] = pose
+        return pose
 
     def __call__(self, query_ns: ArrayLike) -> F64:
         """(M, 4, 4) poses at the M query timestamps."""

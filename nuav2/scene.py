@@ -162,7 +162,7 @@ class SceneLog:
     max_pose_extrapolation_ns: int = 0
 
     def city_T_ego_at(self, timestamp_ns) -> F64:
-        """Ego pose(s) at arbitrary timestamps (slerp + lerp); (4,4) for a scalar, else (M,4,4)."""
+        """Ego pose(s) at arbitrary timestamps (slerp + lerp); (4,4) read-only for a scalar, else (M,4,4)."""
         key = (self.pose_timestamps_ns, self.city_T_ego, self.max_pose_extrapolation_ns)
         cached = self.__dict__.get("_pose_table")
         same = (cached is not None and cached[0][0] is key[0] and cached[0][1] is key[1]
@@ -170,8 +170,9 @@ class SceneLog:
         if not same:  # built once (checked, quaternions precomputed); rebuilt if the table is replaced
             cached = (key, PoseTable(*key))
             self.__dict__["_pose_table"] = cached
-        out = cached[1](timestamp_ns)
-        return out[0] if np.ndim(timestamp_ns) == 0 else out
+        if np.ndim(timestamp_ns) == 0:
+            return cached[1].at(int(timestamp_ns))
+        return cached[1](timestamp_ns)
 
     def sweep(self, ref: LidarSweepRef) -> LidarPoints:
         if self.load_lidar is None:

@@ -68,6 +68,10 @@ def test_correct_undoes_a_known_factor():
     # the corner is darker than the centre by exp(-0.3 * 1)
     f = model.factor(0, cam.K, cam.width, cam.height)
     assert f[0, 0, 0] < f[24, 32, 0] * np.exp(-0.25)
+    # uint8 images take the one-pass path: the same rounding and clipping as the float formula
+    u8 = rng.integers(0, 256, (48, 64, 3), dtype=np.uint8)
+    expect = np.clip(u8.astype(np.float32) / f + 0.5, 0, 255).astype(np.uint8)
+    np.testing.assert_array_equal(model.correct(u8, 0, cam.K), expect)
 
 
 def test_frames_to_observe_keep_the_rate_and_both_ends():

@@ -13,6 +13,7 @@ import numpy as np
 
 from nuav2.geometry import T_inverse
 from nuav2.scene import SceneLog
+from nuav2.warp.lidar_cloud import inside_boxes
 from nuav2.warp.tracks import BoxTracks
 
 MARGIN_M = 0.15  # labels are a few centimetres off: points this close outside the box still count
@@ -33,19 +34,14 @@ def gather_track_points(tracks: BoxTracks, scene: SceneLog, margin_m: float = MA
             continue
         xyz = np.asarray(scene.sweep(ref).xyz_ego, np.float64)
         xyz = xyz[np.all(np.isfinite(xyz), axis=1)]
-        city_T_ego = scene.city_T_ego_at(t)
-        for k, city_T_box, size in zip(boxes.track, boxes.city_T_box, boxes.size_lwh):
-            box_T_ego = T_inverse(city_T_box) @ city_T_ego
-            centre_ego = T_inverse(box_T_ego)[:3, 3]
-            reach = np.linalg.norm(size / 2 + margin_m)
-            near = np.all(np.abs(xyz - centre_ego) <= reach, axis=1)
-            if not near.any():
-                continue
-            p = xyz[near] @ box_T_ego[:3, :3].T + box_T_ego[:3, 3]
-            inside = np.all(np.abs(p) <= size / 2 + margin_m, axis=1)
-            inside &= p[:, 2] > -size[2] / 2 + GROUND_CLEAR_M
-            if inside.any():
-                out[int(k)].append(p[inside])
+        box_T_ego = T_inverse(boxes.city_T_box) @ scene.city_T_ego_at(t)
+        half = 0.5 * boxes.size_lwh
+        lo = -half - margin_m
+        lo[:, 2] = -half[:, 2] + GROUND_CLEAR_M  # the road under the box is not the actor
+        inside = inside_boxes(xyz, box_T_ego, lo, half + margin_m)
+        for b in np.flatnonzero(inside.any(axis=1)):
+            p = xyz[inside[b]] @ box_T_ego[b, :3, :3].T + box_T_ego[b, :3, 3]
+            out[int(boxes.track[b])].append(p)
     return out
 
 

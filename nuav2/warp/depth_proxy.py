@@ -13,7 +13,7 @@ Pixel centres sit at integer (u, v), as in :meth:`nuav2.rig.CameraSpec.scaled`.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -21,10 +21,10 @@ import numpy as np
 from nuav2.geometry import F64, T_inverse
 from nuav2.rig import CameraSpec
 from nuav2.scene import GroundHeightRaster
-from nuav2.terrain import bilinear_height
 from nuav2.warp._kernels import (
     box_depth_kernel,
     ground_depth_kernel,
+    ground_heights_kernel,
     ground_intersect_kernel,
     ray_box_kernel,
     splat_points_kernel,
@@ -88,14 +88,12 @@ class GroundSurface:
         return (self.offset - xy[:, 0] * n[0] - xy[:, 1] * n[1]) / n[2]
 
     def height(self, xy: F64) -> F64:
-        """Ground z at (N, 2) city xy: the raster (bilinear, :mod:`nuav2.terrain`) where it has a value, else
-        the plane."""
-        if self.raster is None:
-            return self.plane_height(xy)
-        h = bilinear_height(self.raster, xy)
-        miss = ~np.isfinite(h)
-        h[miss] = self.plane_height(xy[miss])
-        return h
+        """Ground z at (N, 2) city xy: the raster (bilinear, as :mod:`nuav2.terrain`) where it has a value,
+        else the plane (compiled: every sweep's points are tested against it)."""
+        xy = np.ascontiguousarray(np.asarray(xy, np.float64).reshape(-1, 2))
+        out = np.empty(len(xy))
+        ground_heights_kernel(xy, *self.kernel_args(), out)
+        return out
 
     def intersect(self, origin: F64, dirs: F64, iterations: int = 3, t_max: float = GROUND_T_MAX,
                   tol_m: float = GROUND_TOL_M) -> F64:
@@ -302,22 +300,32 @@ def actor_surface(camera: CameraSpec, city_T_cam: F64, geometry: ProxyGeometry, 
     """(H, W) bool: where a box pixel really shows its actor. A box is a cuboid, an actor is not (rounded
     bodies, the road under a car, a box a few centimetres off): the actor's own points, splatted as
     ``ACTOR_POINT_RADIUS_M`` disks with small holes closed, must show a surface there in front of what
-    lies behind. Boxes with fewer than ``ACTOR_MIN_POINTS`` points (far, occluded) are kept whole."""
-    n_box = len(geometry.city_T_box)
+    lies behind. Boxes with fewer than ``ACTOR_MIN_POINTS`` points (far, occluded) are kept whole.
+    The points are splatted only into the rectangle around the checked boxes' pixels (plus the hole
+    closing's reach): actors cover a small part of most views."""
     counts = np.array([len(p) for p in geometry.actor_points_box], np.int64)
-    shown = np.zeros(n_box, bool)
-    shown[np.unique(box_index[box_index >= 0])] = True
-    use = np.flatnonzero(shown & (counts >= ACTOR_MIN_POINTS))  # only the boxes this view shows
+    has_points = counts >= ACTOR_MIN_POINTS
+    valid = box_index >= 0
+    checked = np.zeros(box_index.shape, bool)
+    checked[valid] = has_points[box_index[valid]]
+    out = valid & ~checked  # boxes without enough points are trusted whole
+    if not checked.any():
+        return out
+    use = np.unique(box_index[checked])  # only the boxes this view shows
     parts = [geometry.actor_points_box[b] @ geometry.city_T_box[b, :3, :3].T + geometry.city_T_box[b, :3, 3]
              for b in use]
-    pts = np.concatenate(parts) if parts else np.zeros((0, 3))
-    d = lidar_depth(camera, city_T_cam, pts, np.full(len(pts), ACTOR_POINT_RADIUS_M), config)
-    seen = np.isfinite(d) & (d < behind)
-    has_points = counts >= ACTOR_MIN_POINTS
-    trust = np.zeros(box_index.shape, bool)
-    valid = box_index >= 0
-    trust[valid] = ~has_points[box_index[valid]]
-    return seen | trust
+    rows, cols = np.flatnonzero(checked.any(axis=1)), np.flatnonzero(checked.any(axis=0))
+    reach = 2 * max(int(config.fill_px), 1)  # closing reads this far; beyond it the crop edge cannot matter
+    r0, r1 = max(int(rows[0]) - reach, 0), min(int(rows[-1]) + reach + 1, camera.height)
+    c0, c1 = max(int(cols[0]) - reach, 0), min(int(cols[-1]) + reach + 1, camera.width)
+    K = np.array(camera.K, dtype=np.float64)
+    K[0, 2] -= c0
+    K[1, 2] -= r0
+    crop = replace(camera, width=c1 - c0, height=r1 - r0, K=K, ego_mask_polygons=())
+    pts = np.concatenate(parts)
+    d = lidar_depth(crop, city_T_cam, pts, np.full(len(pts), ACTOR_POINT_RADIUS_M), config)
+    out[r0:r1, c0:c1] |= checked[r0:r1, c0:c1] & np.isfinite(d) & (d < behind[r0:r1, c0:c1])
+    return out
 
 
 def render_depth_proxy(camera: CameraSpec, city_T_cam: F64, geometry: ProxyGeometry,

@@ -18,6 +18,7 @@ import numpy as np
 
 from nuav2.geometry import F64, T_inverse, transform_points
 from nuav2.scene import SceneLog
+from nuav2.warp._kernels import inside_boxes_kernel
 from nuav2.warp.depth_proxy import GroundSurface
 from nuav2.warp.tracks import BoxTracks
 
@@ -31,26 +32,26 @@ class CloudConfig:
     ego_box_min: tuple[float, float, float] = (-1.2, -1.1, 0.05)  # ego body, metres (z above ground)
     ego_box_max: tuple[float, float, float] = (4.0, 1.1, 2.0)
     ground_band_m: float = 0.15  # points this close to the ground surface are dropped (0: keep all)
-    cache_sweeps: int = 32
+    cache_sweeps: int = 160  # a 15 s AV2 log has 150 sweeps: keep them all (~1.6 MB each on real sweeps)
+
+
+def inside_boxes(points: F64, box_T_frame: F64, lo: F64, hi: F64) -> np.ndarray:
+    """(B, N) bool: point n (frame coordinates) lies within ``lo[b] <= box_T_frame[b] p <= hi[b]`` (faces
+    inclusive). One compiled pass per box: the numpy version spent most of a sweep's time here."""
+    box_T_frame = np.ascontiguousarray(np.asarray(box_T_frame, np.float64).reshape(-1, 4, 4))
+    out = np.zeros((len(box_T_frame), len(points)), bool)
+    if len(points) and len(box_T_frame):
+        inside_boxes_kernel(np.ascontiguousarray(points, np.float64), box_T_frame,
+                            np.ascontiguousarray(np.broadcast_to(lo, (len(box_T_frame), 3)), np.float64),
+                            np.ascontiguousarray(np.broadcast_to(hi, (len(box_T_frame), 3)), np.float64), out)
+    return out
 
 
 def points_in_boxes(points: F64, city_T_box: F64, size_lwh: F64, margin_m: float) -> np.ndarray:
     """(N,) bool: inside any of the (B) boxes grown by ``margin_m`` on every side."""
-    inside = np.zeros(len(points), bool)
-    if len(points) == 0:
-        return inside
-    city_T_box = np.asarray(city_T_box, dtype=np.float64).reshape(-1, 4, 4)
-    box_T_city = T_inverse(city_T_box)
-    for b in range(len(box_T_city)):
-        half = 0.5 * np.asarray(size_lwh[b]) + margin_m
-        centre = city_T_box[b, :3, 3]
-        near = np.all(np.abs(points - centre) <= np.linalg.norm(half), axis=1)
-        if not np.any(near):
-            continue
-        p = points[near] @ box_T_city[b, :3, :3].T + box_T_city[b, :3, 3]
-        idx = np.flatnonzero(near)
-        inside[idx[np.all(np.abs(p) <= half, axis=1)]] = True
-    return inside
+    half = 0.5 * np.asarray(size_lwh, np.float64).reshape(-1, 3) + margin_m
+    return inside_boxes(points, T_inverse(np.asarray(city_T_box, np.float64).reshape(-1, 4, 4)), -half,
+                        half).any(axis=0)
 
 
 class LidarCloud:

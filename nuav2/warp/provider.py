@@ -18,6 +18,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from threadpoolctl import ThreadpoolController
 
 from nuav2.actor_tracks import is_non_rigid
 from nuav2.atomic import atomic_write_json
@@ -32,6 +33,16 @@ from nuav2.warp.depth_proxy import GroundSurface, ProxyConfig, ProxyGeometry, re
 from nuav2.warp.harmonise import solve_source_exposure, static_points
 from nuav2.warp.lidar_cloud import CloudConfig, LidarCloud
 from nuav2.warp.tracks import DEFAULT_TOLERANCE_NS, BoxesAt, BoxTracks
+
+_THREADPOOLS: list[ThreadpoolController] = []
+
+
+def one_blas_thread():
+    """Context: BLAS on one thread. The warp's matrix products are small (points x 3x3); OpenBLAS's
+    second thread gained no wall time on a 15 s log and spun for 25 CPU s, taken from the other worker."""
+    if not _THREADPOOLS:
+        _THREADPOOLS.append(ThreadpoolController())
+    return _THREADPOOLS[0].limit(limits=1, user_api="blas")
 
 
 @dataclass(frozen=True)
@@ -66,7 +77,8 @@ class WarpConfig:
 
     def fingerprint(self) -> str:
         d = asdict(self)
-        d.pop("cache_mb")
+        d.pop("cache_mb")  # cache sizes change speed and memory, never an image
+        d["cloud"].pop("cache_sweeps")
         return hashlib.sha256(json.dumps(d, sort_keys=True, default=str).encode()).hexdigest()[:12]
 
 
@@ -110,7 +122,8 @@ class WarpRenderer:
             self.tracks = self.tracks.select(self.tracks.moving())
         self.actor_points: list[np.ndarray] | None = None
         if self.config.actor_check:
-            self.actor_points = actor_models(gather_track_points(self.tracks, scene))
+            with one_blas_thread():
+                self.actor_points = actor_models(gather_track_points(self.tracks, scene))
         self.cloud = LidarCloud(scene, self.tracks, self.config.cloud, self.ground_at)
         self.frames: dict[str, list[CameraFrame]] = {}
         self.frame_ns: dict[str, np.ndarray] = {}
@@ -267,7 +280,8 @@ class WarpRenderer:
     def __call__(self, channel: str, camera: CameraSpec, city_T_cam: F64, timestamp_ns: int) -> np.ndarray:
         """The writer's RenderFn: uint8 (H, W, 3) RGB. Its recorded confidence is the share of pixels a
         source saw, not counting pixels of non-rigid actors (their limbs move inside the warped box)."""
-        out = self.render(camera, city_T_cam, timestamp_ns)
+        with one_blas_thread():
+            out = self.render(camera, city_T_cam, timestamp_ns)
         trusted = out.coverage if out.nonrigid is None else out.coverage & ~out.nonrigid
         self.coverage.setdefault(channel, {})[int(timestamp_ns)] = float(trusted.mean())
         if out.nonrigid is not None:

@@ -98,30 +98,23 @@ class BoxTracks:
                          self.city_t_box[rows], self.size_lwh[rows], category)
 
     def at(self, timestamp_ns: int, tolerance_ns: int = DEFAULT_TOLERANCE_NS) -> BoxesAt:
-        """Every track alive at ``timestamp_ns`` (within ``tolerance_ns`` of its ends), posed at that time."""
+        """Every track alive at ``timestamp_ns`` (within ``tolerance_ns`` of its ends), posed at that time.
+        Vectorised over tracks: the warp asks once per image, and a busy log has hundreds of tracks."""
         t = int(timestamp_ns)
-        lo_l, hi_l, alpha_l, track_l = [], [], [], []
-        for k in range(len(self.track_ids)):
-            s, e = int(self.starts[k]), int(self.starts[k + 1])
-            ts = self.timestamp_ns[s:e]
-            if t < ts[0] - tolerance_ns or t > ts[-1] + tolerance_ns:
-                continue
-            if e - s == 1:
-                lo, hi, a = s, s, 0.0
-            else:
-                j = int(np.clip(np.searchsorted(ts, t, side="right"), 1, e - s - 1))
-                lo, hi = s + j - 1, s + j
-                t_lo, t_hi = int(self.timestamp_ns[lo]), int(self.timestamp_ns[hi])
-                a = (t - t_lo) / float(t_hi - t_lo)
-            lo_l.append(lo)
-            hi_l.append(hi)
-            alpha_l.append(a)
-            track_l.append(k)
-        if not track_l:
+        first, last = self.starts[:-1], self.starts[1:] - 1
+        alive = np.flatnonzero((self.timestamp_ns[first] - tolerance_ns <= t)
+                               & (t <= self.timestamp_ns[last] + tolerance_ns)) if len(self) else first
+        if len(alive) == 0:
             return BoxesAt(np.zeros(0, np.int64), np.zeros((0, 4, 4)), np.zeros((0, 3)))
-        lo, hi = np.array(lo_l), np.array(hi_l)
-        alpha = np.array(alpha_l)
+        s, n = self.starts[alive], (last - first + 1)[alive]
+        at_or_before = np.add.reduceat((self.timestamp_ns <= t).astype(np.int64), self.starts[:-1])[alive]
+        j = np.minimum(np.maximum(at_or_before, 1), np.maximum(n - 1, 1))  # segment [j - 1, j] of the track
+        single = n == 1
+        lo = np.where(single, s, s + j - 1)
+        hi = np.where(single, s, s + j)
+        span = np.where(single, 1.0, (self.timestamp_ns[hi] - self.timestamp_ns[lo]).astype(np.float64))
+        alpha = np.where(single, 0.0, (t - self.timestamp_ns[lo]).astype(np.float64) / span)
         q = quat_slerp(self.city_q_box[lo], self.city_q_box[hi], alpha)
         tr = self.city_t_box[lo] + alpha[:, None] * (self.city_t_box[hi] - self.city_t_box[lo])
         near = np.where(alpha < 0.5, lo, hi)
-        return BoxesAt(np.array(track_l, np.int64), T_from_quat_trans(q, tr), self.size_lwh[near])
+        return BoxesAt(alive.astype(np.int64), T_from_quat_trans(q, tr), self.size_lwh[near])
