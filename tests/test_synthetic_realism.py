@@ -273,3 +273,40 @@ def test_label_noise_offsets_jitter_sizes_and_misses(medium):
     jitter = [np.std(v, axis=0) for v in offsets.values() if len(v) >= 5]
     assert 0.01 < np.mean(np.linalg.norm(per_track, axis=1)) < 0.2  # a per-track offset of centimetres
     assert 0.005 < np.mean(np.array(jitter)[:, :2]) < 0.06  # per-frame jitter of centimetres
+
+
+def test_label_noise_parts_switch_one_error_each_and_keep_the_others_draws():
+    from nuav2.synth.labels import ALL_PARTS, LabelNoiseParts, label_errors
+
+    rng = np.random.default_rng(0)
+    k = 40
+    yaw = rng.uniform(-np.pi, np.pi, k)
+    ego_T_box = np.tile(np.eye(4), (k, 1, 1))
+    ego_T_box[:, 0, 0], ego_T_box[:, 0, 1], ego_T_box[:, 1, 0], ego_T_box[:, 1, 1] = (
+        np.cos(yaw), -np.sin(yaw), np.sin(yaw), np.cos(yaw))
+    ego_T_box[:, :2, 3] = rng.uniform(-80, 80, (k, 2))
+    size = rng.uniform(0.5, 5.0, (k, 3))
+    points = rng.integers(0, 20, k)
+    uids = [f"track-{i}" for i in range(k)]
+    args = (7, uids, 123_000_000, ego_T_box, size, points)
+    T_all, s_all, kept_all = label_errors(*args)
+    T_def, s_def, kept_def = label_errors(*args, ALL_PARTS)
+    np.testing.assert_array_equal(T_all, T_def)
+    assert not kept_all.all()  # far / few-point objects are missed
+    none = LabelNoiseParts(False, False, False, False)
+    T0, s0, kept0 = label_errors(*args, none)
+    np.testing.assert_allclose(T0, ego_T_box, atol=1e-12)
+    np.testing.assert_array_equal(s0, size)
+    assert kept0.all()
+    T_off, s_off, _ = label_errors(*args, LabelNoiseParts(True, False, False, False))
+    T_jit, _, _ = label_errors(*args, LabelNoiseParts(False, False, True, False))
+    np.testing.assert_array_equal(s_off, size)
+    # offset and jitter add up to the full pose error (box frame), each non-zero on its own
+    d_off = np.linalg.inv(ego_T_box) @ T_off
+    d_jit = np.linalg.inv(ego_T_box) @ T_jit
+    d_all = np.linalg.inv(ego_T_box) @ T_all
+    np.testing.assert_allclose(d_off[:, :3, 3] + d_jit[:, :3, 3], d_all[:, :3, 3], atol=1e-9)
+    assert np.abs(d_off[:, :3, 3]).mean() > 0.01 and np.abs(d_jit[:, :3, 3]).mean() > 0.005
+    _, s_size, kept_miss = label_errors(*args, LabelNoiseParts(False, True, False, True))
+    np.testing.assert_array_equal(s_size, s_all)
+    np.testing.assert_array_equal(kept_miss, kept_all)

@@ -9,6 +9,7 @@ heavily occluded objects (few lidar points) are sometimes left unlabelled, as in
 from __future__ import annotations
 
 import zlib
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -23,6 +24,20 @@ FAR_M = 50.0
 FEW_POINTS = 5
 
 
+@dataclass(frozen=True)
+class LabelNoiseParts:
+    """Which parts of the label noise apply (all by default); the others are drawn and discarded, so a part
+    keeps the same errors whichever others are on (``docs/ablation/label_noise_parts.py`` costs each)."""
+
+    track_offset: bool = True  # per-track constant pose offset and yaw
+    size: bool = True  # per-track size error
+    frame_jitter: bool = True  # per-frame pose and yaw jitter
+    missed: bool = True  # far or hidden objects left unlabelled
+
+
+ALL_PARTS = LabelNoiseParts()
+
+
 def _rz(a: F64) -> F64:
     c, s = np.cos(a), np.sin(a)
     R = np.zeros((len(a), 3, 3))
@@ -31,7 +46,8 @@ def _rz(a: F64) -> F64:
 
 
 def label_errors(
-    seed: int, track_uuids: list[str], timestamp_ns: int, ego_T_box: F64, size: F64, num_points: np.ndarray
+    seed: int, track_uuids: list[str], timestamp_ns: int, ego_T_box: F64, size: F64, num_points: np.ndarray,
+    parts: LabelNoiseParts = ALL_PARTS,
 ) -> tuple[F64, F64, np.ndarray]:
     """(ego_T_label (K, 4, 4), label sizes (K, 3), kept (K,) bool) for one sweep's true cuboids."""
     k = len(track_uuids)
@@ -44,11 +60,14 @@ def label_errors(
         track_yaw[i] = np.deg2rad(rng.normal(0.0, TRACK_YAW_DEG))
         scale[i] = 1.0 + rng.normal(0.0, SIZE_ERROR, 3)
     rng = np.random.default_rng([seed, 301, int(timestamp_ns) % (1 << 62)])
-    off = track_off + rng.normal(0.0, FRAME_JITTER_M, (k, 3))
-    yaw = track_yaw + np.deg2rad(rng.normal(0.0, FRAME_YAW_DEG, k))
+    jitter = rng.normal(0.0, FRAME_JITTER_M, (k, 3))
+    jitter_yaw = np.deg2rad(rng.normal(0.0, FRAME_YAW_DEG, k))
+    off = track_off * parts.track_offset + jitter * parts.frame_jitter
+    yaw = track_yaw * parts.track_offset + jitter_yaw * parts.frame_jitter
     box_T_label = make_T(_rz(yaw), off)
     dist = np.linalg.norm(ego_T_box[:, :2, 3], axis=1)
     p_miss = np.where(num_points == 0, 0.7, np.where(num_points < FEW_POINTS, 0.4, 0.0))
     p_miss = np.maximum(p_miss, np.where(dist > FAR_M, 0.35, 0.0))
-    kept = rng.uniform(size=k) >= p_miss
-    return ego_T_box @ box_T_label, size * np.clip(scale, 0.9, 1.1), kept
+    kept = (rng.uniform(size=k) >= p_miss) | (not parts.missed)
+    scale = np.clip(scale, 0.9, 1.1) if parts.size else np.ones_like(scale)
+    return ego_T_box @ box_T_label, size * scale, kept
