@@ -4,7 +4,7 @@
   and 6 test worlds of 1 s (10 keyframes each), four training sets, two training seeds, 1200-step
   runs, fine-tuning on 5 / 10 / 25 % of the oracle training set (1, 2 and 6 of its 24 scenes)
   from scratch and from the nuAV2 model, 400 steps each.
-- ``quick``: the same pipeline smaller (under 30 min): 6 + 2 worlds, 250-step runs.
+- ``quick``: the same pipeline smaller (under 30 min): 6 + 2 worlds, 160-step runs (50 for Table 2).
 - ``smoke``: plumbing only (CI): 1 + 1 tiny worlds, no render mode, a few steps.
 
 Training runs go two at a time in worker processes with one torch thread each (two runs keep
@@ -110,9 +110,9 @@ class TransferConfig:
                 size="quick",
                 train_worlds=6,
                 test_worlds=2,
-                steps=250,
+                steps=160,
                 eval_points=2,
-                finetune_steps=80,
+                finetune_steps=50,
                 fractions=(0.25, 0.5),
             )
         elif size == "smoke":
