@@ -194,20 +194,22 @@ class ExposureModel:
     def gain(self, image_index: int) -> np.ndarray:
         return np.exp(self.log_gain[int(image_index)])
 
+    def falloff(self, image_index: int, K: F64, width: int, height: int) -> np.ndarray:
+        """(H, W) float32 radial fall-off of the image's camera (cached per camera)."""
+        a1, a2 = self.vignetting[int(self.camera_of_image[int(image_index)])]
+        return _falloff_map(float(a1), float(a2), float(K[0][2]), float(K[1][2]), int(width), int(height))
+
     def factor(self, image_index: int, K: F64, width: int, height: int) -> np.ndarray:
         """(H, W, 3) float32: the observed image is the reference-exposure image times this."""
-        a1, a2 = self.vignetting[int(self.camera_of_image[int(image_index)])]
-        falloff = _falloff_map(float(a1), float(a2), float(K[0][2]), float(K[1][2]), int(width), int(height))
-        return falloff[..., None] * np.exp(self.log_gain[int(image_index)]).astype(np.float32)
+        return (self.falloff(image_index, K, width, height)[..., None]
+                * np.exp(self.log_gain[int(image_index)]).astype(np.float32))
 
     def correct(self, image: np.ndarray, image_index: int, K: F64) -> np.ndarray:
         """The image at the reference exposure (same dtype; uint8 rounds and clips)."""
         h, w = image.shape[:2]
         if image.dtype == np.uint8 and image.ndim == 3:
-            a1, a2 = self.vignetting[int(self.camera_of_image[int(image_index)])]
-            falloff = _falloff_map(float(a1), float(a2), float(K[0][2]), float(K[1][2]), int(w), int(h))
             out = np.empty_like(image)
-            _divide_u8(np.ascontiguousarray(image), falloff,
+            _divide_u8(np.ascontiguousarray(image), self.falloff(image_index, K, w, h),
                        np.exp(self.log_gain[int(image_index)]).astype(np.float32), out)
             return out
         f = self.factor(image_index, K, w, h)

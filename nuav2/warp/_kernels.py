@@ -308,9 +308,9 @@ def ground_depth_kernel(K, city_T_cam, normal, offset, heights, rR, rt, rs, has_
 
     With a raster, rays are solved in full only on a grid every ``GROUND_BLOCK`` pixels (and where a
     block's corners do not all hit the ground); a pixel inside a block takes the bilinear interpolation of
-    its corners' inverse depth (exact on a plane) and, if the ray is within ``tol`` of the ground there
-    (the full solve's own acceptance test), takes two fixed-point steps from it: two height lookups
-    instead of four or more.
+    its corners' inverse depth (exact on a plane) and, if the ray passes within ``GROUND_PREDICT_TOL_M``
+    of the ground there, one fixed-point step from it (the residual already computed gives it): one
+    height lookup instead of four or more. Otherwise the pixel is solved in full.
     """
     h, w = depth.shape
     fx, skew, cx, fy, cy = K[0, 0], K[0, 1], K[0, 2], K[1, 1], K[1, 2]

@@ -10,6 +10,7 @@ and their share is recorded per image in :attr:`WarpRenderer.coverage`.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 from collections import OrderedDict
@@ -34,15 +35,16 @@ from nuav2.warp.harmonise import solve_source_exposure, static_points
 from nuav2.warp.lidar_cloud import CloudConfig, LidarCloud
 from nuav2.warp.tracks import DEFAULT_TOLERANCE_NS, BoxesAt, BoxTracks
 
-_THREADPOOLS: list[ThreadpoolController] = []
+
+@functools.cache
+def _threadpools() -> ThreadpoolController:
+    return ThreadpoolController()  # scans the loaded libraries once
 
 
 def one_blas_thread():
     """Context: BLAS on one thread. The warp's matrix products are small (points x 3x3); OpenBLAS's
     second thread gained no wall time on a 15 s log and spun for 25 CPU s, taken from the other worker."""
-    if not _THREADPOOLS:
-        _THREADPOOLS.append(ThreadpoolController())
-    return _THREADPOOLS[0].limit(limits=1, user_api="blas")
+    return _threadpools().limit(limits=1, user_api="blas")
 
 
 @dataclass(frozen=True)

@@ -103,7 +103,7 @@ class BoxTracks:
         t = int(timestamp_ns)
         first, last = self.starts[:-1], self.starts[1:] - 1
         alive = np.flatnonzero((self.timestamp_ns[first] - tolerance_ns <= t)
-                               & (t <= self.timestamp_ns[last] + tolerance_ns)) if len(self) else first
+                               & (t <= self.timestamp_ns[last] + tolerance_ns))
         if len(alive) == 0:
             return BoxesAt(np.zeros(0, np.int64), np.zeros((0, 4, 4)), np.zeros((0, 3)))
         s, n = self.starts[alive], (last - first + 1)[alive]
