@@ -69,6 +69,7 @@ class WarpConfig:
     smooth_tracks: bool = True  # take per-frame label jitter out of the box tracks (nuav2.actor_tracks)
     static_actors_as_lidar: bool = True  # parked actors are LiDAR geometry (their real shape), not boxes
     actor_check: bool = True  # box pixels only where the actor's own LiDAR points show a surface
+    actor_ring: bool = True  # ... also up to actor_points.MARGIN_M past the label, where its points recur
 
     def __post_init__(self) -> None:
         if self.fill not in FILL_MODES:
@@ -122,10 +123,15 @@ class WarpRenderer:
         self.tracks = BoxTracks.from_scene(scene, smooth=self.config.smooth_tracks)
         if self.config.static_actors_as_lidar:  # only what moves needs a box that carries it
             self.tracks = self.tracks.select(self.tracks.moving())
-        self.actor_points: list[np.ndarray] | None = None
+        self.actor_layers: list[tuple[F64, F64, np.ndarray]] | None = None  # per track: centre, size, points
         if self.config.actor_check:
             with one_blas_thread():
-                self.actor_points = actor_models(gather_track_points(self.tracks, scene))
+                sweep_ns = np.asarray(scene.sweep_timestamps_ns, np.int64)
+                period_s = float(np.median(np.diff(sweep_ns))) * 1e-9 if len(sweep_ns) > 1 else 0.1
+                models = actor_models(gather_track_points(self.tracks, scene), self.tracks, period_s,
+                                      ring=self.config.actor_ring)
+            self.actor_layers = [(0.5 * (m.lo + m.hi), m.hi - m.lo, m.points_box - 0.5 * (m.lo + m.hi))
+                                 for m in models]
         self.cloud = LidarCloud(scene, self.tracks, self.config.cloud, self.ground_at)
         self.frames: dict[str, list[CameraFrame]] = {}
         self.frame_ns: dict[str, np.ndarray] = {}
@@ -172,11 +178,15 @@ class WarpRenderer:
         """Ground, static lidar points and boxes at ``timestamp_ns`` (the boxes also with their tracks)."""
         pts, radius = self.cloud.around(timestamp_ns)
         boxes = self.boxes_at(timestamp_ns)
-        actor_pts = None
-        if self.actor_points is not None and len(boxes):
-            actor_pts = tuple(self.actor_points[int(k)] for k in boxes.track)  # box frame; placed on demand
-        geometry = ProxyGeometry(self.ground_at(timestamp_ns), pts, radius, boxes.city_T_box, boxes.size_lwh,
-                                 actor_pts)
+        city_T_layer, size, actor_pts = boxes.city_T_box, boxes.size_lwh, None
+        if self.actor_layers is not None and len(boxes):
+            layers = [self.actor_layers[int(k)] for k in boxes.track]
+            city_T_layer = boxes.city_T_box.copy()  # the layer's cuboid: the label box, moved to the actor
+            city_T_layer[:, :3, 3] += np.einsum("bij,bj->bi", boxes.city_T_box[:, :3, :3],
+                                                np.array([c for c, _, _ in layers]))
+            size = np.array([s for _, s, _ in layers])
+            actor_pts = tuple(p for _, _, p in layers)  # layer frame; placed on demand
+        geometry = ProxyGeometry(self.ground_at(timestamp_ns), pts, radius, city_T_layer, size, actor_pts)
         return geometry, boxes
 
     # -- sources --------------------------------------------------------------------------------
