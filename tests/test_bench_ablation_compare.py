@@ -43,3 +43,29 @@ def test_cli_compares_a_saved_run_with_itself(tmp_path, capsys):
     missing = str(tmp_path / "none.json")
     assert cli_main(["bench", "ablation", "--from-json", str(out), "--before", missing]) == 2
     assert "--before" in capsys.readouterr().err
+
+
+def test_from_json_merges_a_later_runs_modes(tmp_path, capsys):
+    """Two real runs of the same seed: the later one's warp columns (here at another target scale, so they
+    differ) replace the earlier one's, its extra row joins; runs of other seeds do not merge."""
+    base = ["bench", "ablation", "--presets", "", "--seconds", "0.3", "--image-scale", "0.0625",
+            "--modes", "warp", "--speed-seconds", "0", "--json"]
+    first, later, other = tmp_path / "first.json", tmp_path / "later.json", tmp_path / "other.json"
+    exposure = ["--factors", "exposure", "--scale", "0.1"]
+    assert cli_main([*base, "--seeds", "0", *exposure, "--out", str(first)]) == 0
+    assert cli_main([*base, "--seeds", "0", "--factors", "exposure,lidar_noise", "--scale", "0.08",
+                     "--out", str(later)]) == 0
+    capsys.readouterr()
+    assert cli_main(["bench", "ablation", "--from-json", str(first), str(later), "--json"]) == 0
+    merged = json.loads(capsys.readouterr().out)
+    a, b = json.loads(first.read_text()), json.loads(later.read_text())
+    assert a["rows"]["easy"]["warp"] != b["rows"]["easy"]["warp"]
+    assert merged["rows"]["easy"]["warp"] == b["rows"]["easy"]["warp"]
+    warp_of = [r["per_seed"]["+exposure"][0]["modes"]["warp"] for r in (merged, b)]
+    assert warp_of[0] == warp_of[1]
+    assert set(merged["rows"]) == {"easy", "+exposure", "+lidar_noise"}
+    assert a["command"] in merged["command"] and b["command"] in merged["command"]
+    assert cli_main([*base, "--seeds", "1", *exposure, "--out", str(other)]) == 0
+    capsys.readouterr()
+    assert cli_main(["bench", "ablation", "--from-json", str(first), str(other)]) == 2
+    assert "seeds" in capsys.readouterr().err

@@ -16,6 +16,8 @@ recovered; the goals of the robustness issue are evaluated on the same numbers:
 
 from __future__ import annotations
 
+import copy
+
 MODES = ("warp", "render")
 RECOVER_FACTORS = ("exposure", "label_noise", "lidar_noise")
 RECOVER_SHARE = 2.0 / 3.0
@@ -29,6 +31,29 @@ def lost_db(result: dict, row: str, mode: str, region: str = "whole",
     """dB the row loses against easy (mean over seeds; positive = worse than easy), or None if not run."""
     d = result["rows"].get(row, {}).get(mode, {}).get("delta", {}).get(f"{metric}_{region}")
     return None if d is None else -float(d)
+
+
+def merge_modes(results: list[dict]) -> dict:
+    """One result from several saved runs of the same rows and seeds: each later run's modes replace the
+    earlier ones' (a warp-only rerun after a warp change, the render columns kept). Raises ValueError where
+    the rows' seeds differ (the deltas would not be of the same worlds)."""
+    merged = copy.deepcopy(results[0])
+    for later in results[1:]:
+        for row, rec in later["rows"].items():
+            if row not in merged["rows"]:
+                merged["rows"][row], merged["per_seed"][row] = copy.deepcopy(rec), copy.deepcopy(
+                    later["per_seed"][row])
+                continue
+            if _seeds(merged, row) != _seeds(later, row):
+                raise ValueError(f"row {row}: seeds {_seeds(later, row)} differ from {_seeds(merged, row)}")
+            for mode in MODES:
+                if mode in rec:
+                    merged["rows"][row][mode] = copy.deepcopy(rec[mode])
+                    for mine, theirs in zip(merged["per_seed"][row], later["per_seed"][row]):
+                        mine.setdefault("modes", {})[mode] = copy.deepcopy(theirs["modes"][mode])
+        merged["command"] = f"{merged['command']}` + `{later['command']}"
+        merged["machine_end"] = later["machine_end"]
+    return merged
 
 
 def recovered_share(before: float | None, after: float | None) -> float | None:

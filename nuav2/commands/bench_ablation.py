@@ -37,8 +37,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--work-dir", type=Path, default=None, help="keep the logs and databases here")
     p.add_argument("--out", type=Path, default=None, help="also write the JSON here")
     p.add_argument("--markdown", type=Path, default=None, help="also write the docs' tables here")
-    p.add_argument("--from-json", type=Path, default=None,
-                   help="do not run: read a saved result (--out) and write --markdown from it")
+    p.add_argument("--from-json", type=Path, nargs="+", default=None,
+                   help="do not run: read saved results (--out) and write --markdown from them; with several "
+                        "files, each later one's modes replace the earlier ones' (e.g. a --modes warp rerun)")
     p.add_argument("--before", type=Path, default=None,
                    help="a saved earlier result (--out): --markdown then also compares the two, factor by "
                         "factor, with the robustness goals (nuav2/bench/ablation_compare.py)")
@@ -63,10 +64,18 @@ def run(args: argparse.Namespace) -> int:
         except (OSError, json.JSONDecodeError) as e:
             raise UsageError(f"--before {args.before}: cannot read a saved result ({e})") from e
     if args.from_json is not None:
+        from nuav2.bench.ablation_compare import merge_modes
+
+        saved = []
+        for path in args.from_json:
+            try:
+                saved.append(json.loads(Path(path).read_text()))
+            except (OSError, json.JSONDecodeError) as e:
+                raise UsageError(f"--from-json {path}: cannot read a saved result ({e})") from e
         try:
-            result = json.loads(Path(args.from_json).read_text())
-        except json.JSONDecodeError as e:
-            raise UsageError(f"--from-json {args.from_json}: not valid JSON ({e})") from e
+            result = merge_modes(saved)
+        except (KeyError, ValueError) as e:
+            raise UsageError(f"--from-json: the files do not merge ({e})") from e
     else:
         seeds = parse_ints(args.seeds, "--seeds")
         factors = (ABLATION_FACTORS if args.factors == "all"

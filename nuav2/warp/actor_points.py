@@ -7,15 +7,14 @@ actor's points outline the surface that the box layer of the depth proxy keeps
 dropped: on shaped vehicles and cyclists it cost 0.5 dB (easy + content, seed 1).
 
 Labels are off by centimetres (a constant offset per track, a few per cent of size), so the box
-layer's cuboid is not the label: it is the extent of the actor's own points, reaching up to
-``MARGIN_M`` past the label where they do and stopping short of it where they do not (a box labelled
-too far left would otherwise lay the actor's depth over a strip of road, and cut the actor's other
-side off). What stands next to a moving actor (a kerb, a pole, another road user) passes through that
-ring once, while the actor's surface stays put in its box frame, so ring points move the extent only
-where several sweeps saw ring points at the same box-frame place (:func:`seen_repeatedly`; what passes
-within a cell, 20 cm, of the actor's own ring points still counts). Measured on the
-ablation's label-noise logs, the warp's label-noise cost fell from 0.083 to 0.015 dB with the exactly
-labelled logs unchanged (docs/reconstruction.md).
+layer's cuboid is not the label but fitted to the actor's own points (:func:`layer_extent`): a face
+moves out where the points stick out of it, in where they fill that side short of it, and stays where
+they merely stop short (the LiDAR may not have seen that part). What stands next to a moving actor (a
+kerb, a pole, another road user) passes through the ``MARGIN_M`` ring once, while the actor's surface
+stays put in its box frame, so ring points move a face only where several sweeps saw ring points at
+the same box-frame place (:func:`seen_repeatedly`; what passes within a cell, 20 cm, of the actor's
+own ring points still counts). On the ablation's label-noise logs the warp's label-noise cost fell
+from 0.083 to 0.030 dB with the exactly labelled logs unchanged (docs/reconstruction.md).
 """
 
 from __future__ import annotations
@@ -24,6 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from nuav2.actor_tracks import is_non_rigid
 from nuav2.geometry import F64, T_inverse
 from nuav2.scene import SceneLog
 from nuav2.warp.lidar_cloud import inside_boxes
@@ -33,6 +33,7 @@ MARGIN_M = 0.15  # labels are a few centimetres off: points this close outside t
 GROUND_CLEAR_M = 0.1  # points this close to the box bottom are the road (or tyre contact), not the actor
 RING_VOXEL_M = 0.2  # box-frame cell in which a ring point must recur over sweeps
 MIN_RING_SWEEPS = 4  # ... in at least this many sweeps (more for slow actors, whose surroundings move less)
+EXTREME_QUANTILE = 0.01  # a side's "outermost" points: the single outermost is range noise's extreme
 FACE_SLAB_M = 0.03  # points this close to the outermost one along an axis ...
 FACE_CELL_M = 0.1  # ... form a face when they fill, in cells of this size,
 FACE_FILL = 0.3  # ... this share of the box's side there
@@ -114,17 +115,19 @@ def face_seen(points: F64, axis: int, outermost: float, half: F64) -> bool:
     return len(np.unique(ij[:, 0] * cells[1] + ij[:, 1])) >= FACE_FILL * cells.prod()
 
 
-def layer_extent(points: F64, half: F64) -> tuple[F64, F64]:
+def layer_extent(points: F64, half: F64, quantile: float = EXTREME_QUANTILE) -> tuple[F64, F64]:
     """Box-frame (lo, hi) of the layer of an actor with box-frame ``points`` and label half size ``half``.
 
-    Each face moves to the outermost points (by at most ``MARGIN_M``) where they stick out of it or where
-    they form a face short of it (:func:`face_seen`); where they stop short without forming a face (a car
-    seen only from behind, a head between two scan lines) the LiDAR may just not have seen that part, and
-    the face moves in only by what the opposite side sticks out (the label read as offset). Shrinking to
-    every point's extreme instead cut real surface (seed 6, 1 s log: -0.35 dB on actors). A roof the
-    LiDAR looked down on lowers the top; the highest scan line across a pedestrian (a ring round the head,
-    under a third of the box's top) does not. The bottom stays the label's (points near it are the road)."""
-    lowest, highest = points.min(axis=0), points.max(axis=0)
+    Each face moves to the outermost points (the ``quantile`` quantiles, not the extremes: with 2 cm of
+    range noise the single outermost point of a side lies 5-8 cm out), by at most ``MARGIN_M``,
+    where they stick out of it or where they form a face short of it (:func:`face_seen`); where they
+    stop short without forming a face (a car seen only from behind, a head between two scan lines) the
+    LiDAR may just not have seen that part, and the face moves in only by what the opposite side sticks
+    out (the label read as offset). Shrinking to every point's extreme instead cut real surface (seed 6,
+    1 s log: -0.35 dB on actors). A roof the LiDAR looked down on lowers the top; the highest scan line
+    across a pedestrian (a ring round the head, under a third of the box's top) does not. The bottom
+    stays the label's (points near it are the road)."""
+    lowest, highest = np.quantile(points, [quantile, 1.0 - quantile], axis=0)
     out_lo = np.clip(-half - lowest, 0.0, MARGIN_M)
     out_hi = np.clip(highest - half, 0.0, MARGIN_M)
     lo = -half - out_lo + np.minimum(out_hi, np.maximum(lowest + half, 0.0))
@@ -148,7 +151,7 @@ def actor_models(points: list[list[np.ndarray]], tracks: BoxTracks, sweep_period
     ``ring=False``, keep the label box."""
     out = []
     for k, parts in enumerate(points):
-        half = 0.5 * tracks.size_lwh[tracks.starts[k]]
+        half = 0.5 * np.median(tracks.size_lwh[tracks.starts[k]:tracks.starts[k + 1]], axis=0)
         lo, hi = -half, half.copy()
         if not parts:
             out.append(ActorModel(np.zeros((0, 3)), lo, hi))
@@ -161,7 +164,10 @@ def actor_models(points: list[list[np.ndarray]], tracks: BoxTracks, sweep_period
             if sum(len(x) > 0 for x in outside) >= min_sweeps:  # only ring points vouch for each other
                 shape[~shape] = seen_repeatedly(outside, min_sweeps)
             if shape.sum() >= min_points:
-                lo, hi = layer_extent(p[shape], half)
+                # A pedestrian's outermost points are its limbs, not noise: 1 % quantiles cut them (0.5 dB).
+                category = str(tracks.category[k]) if k < len(tracks.category) else ""
+                q = 0.0 if is_non_rigid(category) else EXTREME_QUANTILE
+                lo, hi = layer_extent(p[shape], half, q)
         _, first = np.unique(np.floor(p / VOXEL_M).astype(np.int64), axis=0, return_index=True)
         out.append(ActorModel(p[np.sort(first)], lo, hi))
     return out

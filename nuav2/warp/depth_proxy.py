@@ -253,9 +253,9 @@ class ProxyGeometry:
     ground: GroundSurface | None
     points_city: F64  # (N, 3) static lidar points (outside boxes)
     point_radius_m: F64  # (N,) disk radius per point
-    city_T_box: F64  # (B, 4, 4) boxes at this time
+    city_T_box: F64  # (B, 4, 4) box layers at this time (labels, or fitted to the actors: warp.actor_points)
     size_lwh: F64  # (B, 3)
-    # Each box's actor's own LiDAR points, in the box frame: a box pixel is kept only where these show a
+    # Each box's actor's own LiDAR points, in that layer's frame: a box pixel is kept only where these show a
     # surface (boxes with too few points are kept whole). Moved to the city only for the boxes a view shows.
     actor_points_box: tuple[np.ndarray, ...] | None = None  # B x (M_b, 3)
 
