@@ -6,6 +6,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from nuav2.cells import cell_indices, unique_cells
 from nuav2.geometry import F64, T_inverse
 from nuav2.scene import SceneLog
 from nuav2.terrain import bilinear_height
@@ -97,9 +98,8 @@ class GroundSurface:
         pts = pts[near]
         if len(pts) == 0:
             return cKDTree(np.zeros((1, 2))), np.full(1, np.nan)
-        key = np.floor(pts[:, :2] / cell_m).astype(np.int64)
-        uniq, inv = np.unique(key, axis=0, return_inverse=True)
-        inv = inv.reshape(-1)
+        first, inv, _ = unique_cells(pts[:, :2], cell_m)
+        uniq = cell_indices(pts[first, :2], cell_m)
         order = np.lexsort((pts[:, 2], inv))
         starts = np.searchsorted(inv[order], np.arange(len(uniq)))
         counts = np.bincount(inv, minlength=len(uniq))

@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from nuav2.cells import unique_cells
 from nuav2.geometry import F64, T_inverse
 from nuav2.progress import progress_bar
 from nuav2.scene import SceneLog
@@ -78,9 +79,7 @@ def voxel_downsample(points: F64, voxel_m: float) -> F64:
         return np.zeros((0, 3))
     if not voxel_m > 0:
         raise ValueError(f"voxel size must be > 0, got {voxel_m}")
-    key = np.floor(points / voxel_m).astype(np.int64)
-    _, inv, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
-    inv = inv.reshape(-1)
+    _, inv, counts = unique_cells(points, voxel_m)
     out = np.zeros((len(counts), 3))
     for d in range(3):
         out[:, d] = np.bincount(inv, weights=points[:, d], minlength=len(counts)) / counts

@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING
 import cv2
 import numpy as np
 
+from nuav2.cells import unique_cells
 from nuav2.geometry import F64, T_inverse
 from nuav2.splat.views import Projection, SourceView, project
 
@@ -126,9 +127,7 @@ def facade_seeds(views: list[SourceView], candidates: dict[int, np.ndarray], sky
         return np.zeros((0, 3)), np.zeros((0, 3), np.float32)
     pts, rgb = np.concatenate(pts_out), np.concatenate(rgb_out)
     # One seed per voxel (the first pixel's colour), so many views of a facade do not pile up.
-    key = np.floor(pts / (2 * cfg.voxel_m)).astype(np.int64)
-    _, first = np.unique(key, axis=0, return_index=True)
-    first = np.sort(first)
+    first = np.sort(unique_cells(pts, 2 * cfg.voxel_m)[0])
     return pts[first], rgb[first]
 
 

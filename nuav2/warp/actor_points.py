@@ -24,6 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from nuav2.actor_tracks import is_non_rigid
+from nuav2.cells import unique_cells
 from nuav2.geometry import F64, T_inverse
 from nuav2.scene import SceneLog
 from nuav2.warp.lidar_cloud import inside_boxes
@@ -81,8 +82,7 @@ def seen_repeatedly(parts: list[np.ndarray], min_sweeps: int, voxel_m: float = R
     sweep = np.repeat(np.arange(len(parts)), [len(x) for x in parts])
     best = np.zeros(len(p), np.int64)
     for shift in (0.0, 0.5):
-        _, cell = np.unique(np.floor(p / voxel_m + shift).astype(np.int64), axis=0, return_inverse=True)
-        cell = cell.reshape(-1)
+        _, cell, _ = unique_cells(p, voxel_m, shift)
         pairs = np.unique(cell * len(parts) + sweep)
         sweeps_per_cell = np.bincount(pairs // len(parts), minlength=int(cell.max()) + 1)
         best = np.maximum(best, sweeps_per_cell[cell])
@@ -168,6 +168,6 @@ def actor_models(points: list[list[np.ndarray]], tracks: BoxTracks, sweep_period
                 category = str(tracks.category[k]) if k < len(tracks.category) else ""
                 q = 0.0 if is_non_rigid(category) else EXTREME_QUANTILE
                 lo, hi = layer_extent(p[shape], half, q)
-        _, first = np.unique(np.floor(p / VOXEL_M).astype(np.int64), axis=0, return_index=True)
+        first, _, _ = unique_cells(p, VOXEL_M)
         out.append(ActorModel(p[np.sort(first)], lo, hi))
     return out

@@ -18,6 +18,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from nuav2.cells import unique_cells
 from nuav2.exposure import (
     ExposureConfig,
     ExposureModel,
@@ -81,8 +82,7 @@ def static_points(scene: SceneLog, sweep_points: Callable[[int], F64]) -> F64:
     if scene.load_lidar is not None:
         parts += [sweep_points(i) for i in range(0, len(scene.lidar_sweeps), SWEEP_STRIDE)]
     pts = np.concatenate(parts)
-    key = np.floor(pts / LIDAR_VOXEL_M).astype(np.int64)
-    _, first = np.unique(key, axis=0, return_index=True)
+    first, _, _ = unique_cells(pts, LIDAR_VOXEL_M)
     return pts[np.sort(first)]
 
 
