@@ -49,6 +49,16 @@ class ActorModel:
     lo: F64  # (3,) layer extent, box frame (the label box is [-size/2, size/2])
     hi: F64  # (3,)
 
+    @property
+    def centre(self) -> F64:
+        """(3,) the layer cuboid's centre in the box frame."""
+        return 0.5 * (self.lo + self.hi)
+
+    @property
+    def size(self) -> F64:
+        """(3,) the layer cuboid's size."""
+        return self.hi - self.lo
+
 
 def gather_track_points(tracks: BoxTracks, scene: SceneLog, margin_m: float = MARGIN_M,
                         sweep_stride: int = 1) -> list[list[np.ndarray]]:
@@ -160,7 +170,8 @@ def actor_models(points: list[list[np.ndarray]], tracks: BoxTracks, sweep_period
         if ring:
             shape = np.all(np.abs(p) <= half, axis=1)  # the points that may move the layer's faces
             min_sweeps = ring_min_sweeps(tracks, k, sweep_period_s)
-            outside = [x[~np.all(np.abs(x) <= half, axis=1)] for x in parts]
+            per_sweep = np.split(~shape, np.cumsum([len(x) for x in parts])[:-1])
+            outside = [x[ring_mask] for x, ring_mask in zip(parts, per_sweep)]
             if sum(len(x) > 0 for x in outside) >= min_sweeps:  # only ring points vouch for each other
                 shape[~shape] = seen_repeatedly(outside, min_sweeps)
             if shape.sum() >= min_points:

@@ -123,15 +123,18 @@ class WarpRenderer:
         self.tracks = BoxTracks.from_scene(scene, smooth=self.config.smooth_tracks)
         if self.config.static_actors_as_lidar:  # only what moves needs a box that carries it
             self.tracks = self.tracks.select(self.tracks.moving())
-        self.actor_layers: list[tuple[F64, F64, np.ndarray]] | None = None  # per track: centre, size, points
+        # Per track, the box layer's cuboid (centre in the box frame, size) and the actor's points around
+        # that centre; None without the actor check (label boxes).
+        self.layer_points: list[np.ndarray] | None = None
         if self.config.actor_check:
             with one_blas_thread():
                 sweep_ns = np.asarray(scene.sweep_timestamps_ns, np.int64)
                 period_s = float(np.median(np.diff(sweep_ns))) * 1e-9 if len(sweep_ns) > 1 else 0.1
                 models = actor_models(gather_track_points(self.tracks, scene), self.tracks, period_s,
                                       ring=self.config.actor_ring)
-            self.actor_layers = [(0.5 * (m.lo + m.hi), m.hi - m.lo, m.points_box - 0.5 * (m.lo + m.hi))
-                                 for m in models]
+            self.layer_centre = np.array([m.centre for m in models]).reshape(-1, 3)
+            self.layer_size = np.array([m.size for m in models]).reshape(-1, 3)
+            self.layer_points = [m.points_box - m.centre for m in models]
         self.cloud = LidarCloud(scene, self.tracks, self.config.cloud, self.ground_at)
         self.frames: dict[str, list[CameraFrame]] = {}
         self.frame_ns: dict[str, np.ndarray] = {}
@@ -179,13 +182,12 @@ class WarpRenderer:
         pts, radius = self.cloud.around(timestamp_ns)
         boxes = self.boxes_at(timestamp_ns)
         city_T_layer, size, actor_pts = boxes.city_T_box, boxes.size_lwh, None
-        if self.actor_layers is not None and len(boxes):
-            layers = [self.actor_layers[int(k)] for k in boxes.track]
+        if self.layer_points is not None and len(boxes):
             city_T_layer = boxes.city_T_box.copy()  # the layer's cuboid: the label box, moved to the actor
             city_T_layer[:, :3, 3] += np.einsum("bij,bj->bi", boxes.city_T_box[:, :3, :3],
-                                                np.array([c for c, _, _ in layers]))
-            size = np.array([s for _, s, _ in layers])
-            actor_pts = tuple(p for _, _, p in layers)  # layer frame; placed on demand
+                                                self.layer_centre[boxes.track])
+            size = self.layer_size[boxes.track]
+            actor_pts = tuple(self.layer_points[int(k)] for k in boxes.track)  # layer frame; placed on demand
         geometry = ProxyGeometry(self.ground_at(timestamp_ns), pts, radius, city_T_layer, size, actor_pts)
         return geometry, boxes
 
