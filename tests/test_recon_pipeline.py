@@ -274,6 +274,24 @@ def test_training_stops_when_heldout_psnr_stops_improving(tiny_scene):
     assert len(splat.info["validation_views"]) == 8  # spread over the held-out images
 
 
+def test_the_iteration_cap_follows_the_number_of_training_images(tiny_scene):
+    """A longer log (more training images) gets a higher cap, densification's end moving with it; a short
+    one keeps the preset's count. The presets' rule leaves a 2 s log at 600 / 2,000 iterations."""
+    base = TrainConfig(iterations=600, iterations_per_view=4.0, densify=DensifyConfig(stop=500))
+    assert base.for_views(70) is base  # a 2 s log at frame stride 2: 280 < 600
+    long = base.for_views(525)  # a 15 s log at frame stride 2
+    assert long.iterations == 2100 and long.densify.stop == 1750
+    assert ReconConfig.fast().train.for_views(70).iterations == 600
+    assert ReconConfig.default().train.for_views(126).iterations == 2000
+    assert TrainConfig(iterations=50).for_views(10_000).iterations == 50  # off unless asked for
+    cfg = tiny_config(iterations=10)
+    cfg = replace(cfg, train=replace(cfg.train, iterations_per_view=0.5, eval_every=0))
+    splat = reconstruct(tiny_scene, cfg, progress=False)
+    n_train = len(splat.info["source_views"])
+    rep = splat.info["train"]
+    assert n_train > 40 and rep["iterations"] == rep["steps"] == int(np.ceil(0.5 * n_train))
+
+
 def test_training_reports_progress_as_log_lines_when_not_a_terminal(tiny_scene, caplog, monkeypatch):
     """Off a terminal the trainer's progress is log lines with step, PSNR, held-out PSNR and Gaussians (here
     one per update instead of one per 10 s, so that a short run shows them)."""

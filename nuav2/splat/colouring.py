@@ -57,19 +57,18 @@ def colour_seeds(background: F64, objects: dict[str, F64], tracks: dict[str, Tra
     seen = np.zeros(n, np.int32)
     sky_masks: dict[int, np.ndarray] = {}
     min_sin = np.sin(np.radians(cfg.sky_min_elevation_deg))
+    for tid in objects:
+        tracks[tid].prefetch([v.timestamp_ns for v in views])
     for view in progress_bar(views, desc="colour seeds", unit="img", disable=not progress, leave=False):
-        parts = [background]
-        for tid in objects:
+        cam_T_scene = T_inverse(scene_T_city @ view.city_T_cam)
+        parts = [project(background, view.cam, cam_T_scene)]  # the background as it is (no copy per view)
+        for k, tid in enumerate(objects, start=1):
             tr = tracks[tid]
             if tr.present(view.timestamp_ns):
-                T = tr.scene_T_box_at(view.timestamp_ns)
-                parts.append(objects[tid] @ T[:3, :3].T + T[:3, 3])
-            else:
-                parts.append(np.full((len(objects[tid]), 3), np.nan))
-        pts = np.concatenate(parts) if n else np.zeros((0, 3))
-        cam_T_scene = T_inverse(scene_T_city @ view.city_T_cam)
-        with np.errstate(invalid="ignore"):
-            proj = project(pts, view.cam, cam_T_scene)
+                part = project(objects[tid], view.cam, cam_T_scene @ tr.scene_T_box_at(view.timestamp_ns))
+                parts.append(Projection(part.idx + offsets[k], part.u, part.v, part.z))
+        proj = parts[0] if len(parts) == 1 else Projection(*(np.concatenate([getattr(q, f) for q in parts])
+                                                               for f in ("idx", "u", "v", "z")))
         vis = zbuffer_visible(proj, view.cam.width, view.cam.height, cfg)
         pu, pv = np.round(proj.u).astype(np.int64), np.round(proj.v).astype(np.int64)
         vis &= view.valid[np.clip(pv, 0, view.cam.height - 1), np.clip(pu, 0, view.cam.width - 1)]

@@ -37,6 +37,8 @@ def solve_view_exposure(views: list[SourceView], points_scene: F64, scene_T_city
     n_img = max((v.index for v in views), default=-1) + 1
     camera_of_image = np.zeros(n_img, np.int64)
     obs = Observations()
+    for track in tracks:
+        track.prefetch([v.timestamp_ns for v in views])
     for v in views:
         camera_of_image[v.index] = channels.index(v.channel)
         cam_T_scene = T_inverse(scene_T_city @ v.city_T_cam)

@@ -41,7 +41,7 @@ from nuav2.splat.lidar_seeds import (
     banded_downsample,
     box_surface_points,
     cap_points,
-    distance_to_path,
+    distance_bands,
     knn_scales,
     voxel_downsample,
 )
@@ -171,7 +171,7 @@ def initial_scene(scene: SceneLog, views: list[SourceView], cfg: InitConfig, *, 
     kind = np.concatenate([np.full(len(g), GROUND), kind[rest], np.full(len(facade), FACADE)])
     spacing = np.concatenate([g.size * cfg.ground_spacing_m, np.zeros(int(rest.sum()) + len(facade))])
     tier = np.where(kind == GROUND, np.where(spacing <= cfg.ground_spacing_m, TIER_PAINT, TIER_GROUND),
-                    np.where(distance_to_path(bg_pts[:, :2], path_xy) < cfg.voxel_bands_m[0], TIER_NEAR,
+                    np.where(distance_bands(bg_pts[:, :2], path_xy, cfg.voxel_bands_m[:1]) == 0, TIER_NEAR,
                              TIER_FAR))
     if cfg.budget is None:  # the former rule: a uniform sample over all seeds
         tier = np.zeros(len(tier), np.int64)

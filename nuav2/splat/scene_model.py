@@ -28,7 +28,7 @@ import numpy as np
 import torch
 
 from nuav2.atomic import atomic_write_bytes
-from nuav2.geometry import F64, T_inverse, interpolate_poses, rot_to_quat, translation_T
+from nuav2.geometry import F64, PoseTable, T_inverse, rot_to_quat, translation_T
 from nuav2.rig import CameraSpec
 from nuav2.splat.sky import SkyModel, inverse_sigmoid, pixel_rays
 
@@ -172,6 +172,8 @@ class TrackPoses:
     segment: int | None = None
     present_from_ns: int | None = None
     present_until_ns: int | None = None
+    _table: PoseTable | None = field(default=None, init=False, repr=False, compare=False)
+    _table_of: tuple = field(default=(), init=False, repr=False, compare=False)
 
     @property
     def key(self) -> str:
@@ -186,9 +188,24 @@ class TrackPoses:
             self.presence_margin_ns
 
     def scene_T_box_at(self, timestamp_ns: int) -> F64:
-        """Interpolated box pose (slerp + lerp); the ends hold within the presence margin."""
-        return interpolate_poses(self.timestamps_ns, self.scene_T_box, int(timestamp_ns),
-                                 self.presence_margin_ns)[0]
+        """Interpolated box pose (slerp + lerp); the ends hold within the presence margin. The track's
+        pose table is built once (seeding and rendering ask for every image's time) and
+        rebuilt when ``scene_T_box`` is replaced (:meth:`bake_deltas`)."""
+        return self._pose_table().at(int(timestamp_ns)).copy()
+
+    def prefetch(self, timestamps_ns: list[int]) -> None:
+        """Compute the poses at these times (those the track is present at) in one call; later
+        :meth:`scene_T_box_at` calls read them."""
+        present = [int(t) for t in timestamps_ns if self.present(t)]
+        if present:
+            self._pose_table().prefetch(present)
+
+    def _pose_table(self) -> PoseTable:
+        src = (self.scene_T_box, self.timestamps_ns, self.presence_margin_ns)
+        if self._table is None or any(a is not b for a, b in zip(self._table_of, src)):
+            self._table = PoseTable(self.timestamps_ns, self.scene_T_box, self.presence_margin_ns)
+            self._table_of = src
+        return self._table
 
     def delta_at(self, timestamp_ns: int) -> torch.Tensor | None:
         """The learned correction (4,) at a time: linear between the annotated times, held at the ends."""

@@ -3,6 +3,7 @@ colours, and facade seeds for structure above the LiDAR's reach."""
 
 from __future__ import annotations
 
+from functools import lru_cache
 from typing import TYPE_CHECKING
 
 import cv2
@@ -30,12 +31,22 @@ def sky_mask(view: SourceView, scene_T_city: F64, proj: Projection, min_sin: flo
 
 def elevation_sin(view: SourceView, scene_T_city: F64) -> np.ndarray:
     """(H, W) sine of each pixel ray's elevation in the scene frame (z up)."""
-    h, w = view.cam.height, view.cam.width
     R = (scene_T_city @ view.city_T_cam)[:3, :3]
     K = view.cam.K
-    u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
-    d = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones_like(u)], -1) @ R.T
-    return d[..., 2] / np.linalg.norm(d, axis=-1)
+    unit_rays = _unit_rays_cam(float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]), view.cam.width,
+                               view.cam.height)
+    return unit_rays @ R[2]
+
+
+@lru_cache(maxsize=32)
+def _unit_rays_cam(fx: float, fy: float, cx: float, cy: float, width: int, height: int) -> np.ndarray:
+    """(H, W, 3) unit camera-frame rays through the pixel centres (rig convention), shared by every image
+    of a camera: seeding asks for each image's elevations."""
+    u, v = np.meshgrid(np.arange(width, dtype=np.float64), np.arange(height, dtype=np.float64))
+    d = np.stack([(u - cx) / fx, (v - cy) / fy, np.ones_like(u)], -1)
+    d /= np.linalg.norm(d, axis=-1, keepdims=True)
+    d.flags.writeable = False
+    return d
 
 
 def refine_sky_masks(views: list[SourceView], candidates: dict[int, np.ndarray], scene_T_city: F64,

@@ -14,7 +14,7 @@ import io
 import logging
 import math
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -39,6 +39,10 @@ CHECKPOINT_FORMAT = "nuav2-splat-train/1"
 @dataclass(frozen=True)
 class TrainConfig:
     iterations: int = 2000
+    # The cap follows the log: at least this many iterations per training image (0: ``iterations``
+    # whatever the log). A 15 s log has 7x the images of a 2 s one; each stretch of road is seen by
+    # the images of a few seconds, so a fixed count trains a long log's every stretch 7x less.
+    iterations_per_view: float = 0.0
     pyramid: tuple[float, ...] = (0.5, 1.0)  # resolution factors of the training images ...
     pyramid_until: tuple[float, ...] = (0.25,)  # ... switching at these fractions of the run
     sh_degree_every: int = 500  # raise the active SH degree every this many iterations
@@ -76,6 +80,16 @@ class TrainConfig:
     patience: int = 3  # 0: never stop early (validation is still measured and reported)
     min_delta_db: float = 0.1
     min_iterations: int = 0
+
+    def for_views(self, n_views: int) -> TrainConfig:
+        """This config for ``n_views`` training images: ``iterations`` raised to ``iterations_per_view`` x
+        ``n_views`` where that is more, with densification's stop moved in proportion (the patience rule
+        still ends the run at a plateau)."""
+        n = max(self.iterations, math.ceil(self.iterations_per_view * n_views))
+        if n == self.iterations:
+            return self
+        stop = round(self.densify.stop * n / max(1, self.iterations))
+        return replace(self, iterations=n, densify=replace(self.densify, stop=stop))
 
 
 def pose_prior(track: TrackPoses, lambda_size: float, lambda_smooth: float,
@@ -178,6 +192,7 @@ class TrainReport:
     stop_reason: str = "iterations"  # "iterations", "plateau" (validation PSNR) or "time budget"
     densify_stopped_at: int | None = None  # densification ended early here (validation plateau)
     validation: list[list[float]] = field(default_factory=list)  # [step, mean held-out PSNR dB]
+    iterations: int | None = None  # the cap this run had (TrainConfig.for_views: it follows the log)
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -372,7 +387,7 @@ class Trainer:
         return TrainReport(self.step, time.perf_counter() - t0, float(ema_psnr or 0.0),
                            self.splat.num_gaussians(), list(self.strategy.history), reason != "iterations",
                            list(self.losses), reason, self.strategy.stopped_at,
-                           [list(x) for x in self.validation])
+                           [list(x) for x in self.validation], self.cfg.iterations)
 
     # ---- checkpoint / resume ----
     def state(self) -> dict:

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from numba import njit
 
 from nuav2.exposure import ExposureModel
 from nuav2.geometry import F64
@@ -97,14 +98,41 @@ class Projection:
 
 
 def project(points_scene: F64, cam: CameraSpec, cam_T_scene: F64, near: float = 0.1) -> Projection:
-    """Points in front of the camera that land inside the image (rig pixel convention)."""
-    p = points_scene @ cam_T_scene[:3, :3].T + cam_T_scene[:3, 3]
-    front = np.flatnonzero(p[:, 2] > near)
-    p = p[front]
-    u = cam.K[0, 0] * p[:, 0] / p[:, 2] + cam.K[0, 2]
-    v = cam.K[1, 1] * p[:, 1] / p[:, 2] + cam.K[1, 2]
-    inside = (u > -0.5) & (u < cam.width - 0.5) & (v > -0.5) & (v < cam.height - 0.5)
-    return Projection(front[inside], u[inside], v[inside], p[inside, 2])
+    """Points in front of the camera that land inside the image (rig pixel convention); NaN points
+    never land. One compiled pass: seeding projects every seed into every source image (on a 15 s log
+    about 1,000 images x 300k seeds; numpy's temporaries made that 40 s)."""
+    pts = np.ascontiguousarray(points_scene, dtype=np.float64).reshape(-1, 3)
+    T = np.ascontiguousarray(cam_T_scene, dtype=np.float64)
+    K = np.asarray(cam.K, np.float64)
+    idx, u, v, z = _project_kernel(pts, T, float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]),
+                                   float(cam.width), float(cam.height), float(near))
+    return Projection(idx, u, v, z)
+
+
+@njit(cache=True)
+def _project_kernel(pts, T, fx, fy, cx, cy, width, height, near):  # pragma: no cover - compiled
+    n = pts.shape[0]
+    idx = np.empty(n, np.int64)
+    u_out = np.empty(n)
+    v_out = np.empty(n)
+    z_out = np.empty(n)
+    m = 0
+    for i in range(n):
+        x, y, w = pts[i, 0], pts[i, 1], pts[i, 2]
+        pz = x * T[2, 0] + y * T[2, 1] + w * T[2, 2] + T[2, 3]
+        if not pz > near:
+            continue
+        px = x * T[0, 0] + y * T[0, 1] + w * T[0, 2] + T[0, 3]
+        py = x * T[1, 0] + y * T[1, 1] + w * T[1, 2] + T[1, 3]
+        u = fx * px / pz + cx
+        v = fy * py / pz + cy
+        if u > -0.5 and u < width - 0.5 and v > -0.5 and v < height - 0.5:
+            idx[m] = i
+            u_out[m] = u
+            v_out[m] = v
+            z_out[m] = pz
+            m += 1
+    return idx[:m].copy(), u_out[:m].copy(), v_out[:m].copy(), z_out[:m].copy()
 
 
 def bilinear(image: np.ndarray, u: F64, v: F64) -> np.ndarray:

@@ -1,0 +1,56 @@
+"""One `fast` reconstruction of a saved synthetic log, scored in the nuScenes rig, to compare checkouts.
+
+Prints one JSON line: iterations run and why they stopped, Gaussians, seeding and total wall and CPU
+seconds (CPU of all threads, from getrusage), and target-rig PSNR per region over 12 sample times
+against the world's exact render. Run it once per checkout (``git worktree add DIR COMMIT``) on the same
+log, one after another on a quiet machine; a fresh checkout's first run also compiles its kernels, so
+run it twice there and keep the second:
+
+    nuav2 synth --seed 0 --preset easy --seconds 15 LOGS
+    PYTHONPATH=DIR python docs/ablation/recon_long_log.py LOGS/train/<log_id>
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import time
+from pathlib import Path
+
+from converters.av2 import read_log
+from nuav2.bench.recon import target_rig_scores
+from nuav2.recon import ReconConfig, reconstruct
+from nuav2.synth import load_world
+
+
+def cpu_s() -> float:
+    ru = resource.getrusage(resource.RUSAGE_SELF)
+    return ru.ru_utime + ru.ru_stime
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("log_dir", type=Path, help="a synthetic AV2 log folder (nuav2 synth)")
+    ap.add_argument("--times", type=int, default=12, help="sample times scored in the nuScenes rig")
+    args = ap.parse_args()
+    scene, world = read_log(args.log_dir), load_world(args.log_dir)
+    wall0, cpu0 = time.perf_counter(), cpu_s()
+    splat = reconstruct(scene, ReconConfig.fast(), progress=False)
+    wall, cpu = time.perf_counter() - wall0, cpu_s() - cpu0
+    train = splat.info["train"]
+    target = target_rig_scores(splat, scene, world, n_times=args.times)
+    regions = target["regions"]["psnr_db"]
+    print(json.dumps({
+        "log": scene.log_id, "iterations_cap": train.get("iterations"), "steps": train["steps"],
+        "stop_reason": train["stop_reason"], "densify_stopped_at": train["densify_stopped_at"],
+        "last_heldout_psnr_db": train["validation"][-1][1] if train["validation"] else None,
+        "gaussians": splat.num_gaussians(), "seeding_s": round(splat.info["init_seconds"], 1),
+        "recon_wall_s": round(wall, 1), "recon_cpu_s": round(cpu, 1), "load_1min": os.getloadavg()[0],
+        "psnr_db": round(target["psnr_db"], 3), "ssim": round(target["ssim"], 4),
+        **{f"psnr_{k}_db": round(v, 3) for k, v in regions.items() if v is not None}}))
+
+
+if __name__ == "__main__":
+    main()
