@@ -72,7 +72,7 @@ class ReconConfig:
     @staticmethod
     def fast() -> ReconConfig:
         """CI-sized demo: ~40 s on 2 cores for the default synthetic log (2 s, 1/8-res cameras); 600
-        iterations, or 4 per training image on a longer log (2,100 on a 15 s log) unless the held-out
+        iterations, or 4 per training image on a longer log (4,200 on a 15 s log) unless the held-out
         images stop improving first."""
         return ReconConfig(
             frame_stride=2, sh_degree=0,

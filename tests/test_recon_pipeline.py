@@ -278,11 +278,11 @@ def test_the_iteration_cap_follows_the_number_of_training_images(tiny_scene):
     """A longer log (more training images) gets a higher cap, densification's end moving with it; a short
     one keeps the preset's count. The presets' rule leaves a 2 s log at 600 / 2,000 iterations."""
     base = TrainConfig(iterations=600, iterations_per_view=4.0, densify=DensifyConfig(stop=500))
-    assert base.for_views(70) is base  # a 2 s log at frame stride 2: 280 < 600
-    long = base.for_views(525)  # a 15 s log at frame stride 2
-    assert long.iterations == 2100 and long.densify.stop == 1750
-    assert ReconConfig.fast().train.for_views(70).iterations == 600
-    assert ReconConfig.default().train.for_views(126).iterations == 2000
+    assert base.for_views(140) is base  # a 2 s log's 280 images at frame stride 2: 560 < 600
+    long = base.for_views(1050)  # a 15 s log's 2,100 images at frame stride 2
+    assert long.iterations == 4200 and long.densify.stop == 3500
+    assert ReconConfig.fast().train.for_views(140).iterations == 600
+    assert ReconConfig.default().train.for_views(272).iterations == 2000
     assert TrainConfig(iterations=50).for_views(10_000).iterations == 50  # off unless asked for
     cfg = tiny_config(iterations=10)
     cfg = replace(cfg, train=replace(cfg.train, iterations_per_view=0.5, eval_every=0))

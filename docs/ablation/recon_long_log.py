@@ -1,10 +1,10 @@
-"""One `fast` reconstruction of a saved synthetic log, scored in the nuScenes rig, to compare checkouts.
+"""One reconstruction of a saved synthetic log (`--preset fast` or `default`), scored in the nuScenes rig.
 
 Prints one JSON line: iterations run and why they stopped, Gaussians, seeding and total wall and CPU
 seconds (CPU of all threads, from getrusage), and target-rig PSNR per region over 12 sample times
 against the world's exact render. Run it once per checkout (``git worktree add DIR COMMIT``) on the same
-log, one after another on a quiet machine; a fresh checkout's first run also compiles its kernels, so
-run it twice there and keep the second:
+log, one after another on a quiet machine, to compare checkouts; a fresh checkout's first run also
+compiles its kernels, so run it twice there and keep the second:
 
     nuav2 synth --seed 0 --preset easy --seconds 15 LOGS
     PYTHONPATH=DIR python docs/ablation/recon_long_log.py LOGS/train/<log_id>
@@ -34,16 +34,18 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("log_dir", type=Path, help="a synthetic AV2 log folder (nuav2 synth)")
     ap.add_argument("--times", type=int, default=12, help="sample times scored in the nuScenes rig")
+    ap.add_argument("--preset", default="fast", choices=("fast", "default"), help="reconstruction preset")
     args = ap.parse_args()
     scene, world = read_log(args.log_dir), load_world(args.log_dir)
     wall0, cpu0 = time.perf_counter(), cpu_s()
-    splat = reconstruct(scene, ReconConfig.fast(), progress=False)
+    splat = reconstruct(scene, ReconConfig.preset(args.preset), progress=False)
     wall, cpu = time.perf_counter() - wall0, cpu_s() - cpu0
     train = splat.info["train"]
     target = target_rig_scores(splat, scene, world, n_times=args.times)
     regions = target["regions"]["psnr_db"]
     print(json.dumps({
-        "log": scene.log_id, "iterations_cap": train.get("iterations"), "steps": train["steps"],
+        "log": scene.log_id, "preset": args.preset, "iterations_cap": train.get("iterations"),
+        "steps": train["steps"],
         "stop_reason": train["stop_reason"], "densify_stopped_at": train["densify_stopped_at"],
         "last_heldout_psnr_db": train["validation"][-1][1] if train["validation"] else None,
         "gaussians": splat.num_gaussians(), "seeding_s": round(splat.info["init_seconds"], 1),
