@@ -17,11 +17,13 @@ import json
 import os
 import resource
 import time
+from dataclasses import replace
 from pathlib import Path
 
 from converters.av2 import read_log
 from nuav2.bench.recon import target_rig_scores
-from nuav2.recon import ReconConfig, reconstruct
+from nuav2.recon import ReconConfig, default_channels, reconstruct
+from nuav2.splat.views import source_views
 from nuav2.synth import load_world
 
 
@@ -35,17 +37,25 @@ def main() -> None:
     ap.add_argument("log_dir", type=Path, help="a synthetic AV2 log folder (nuav2 synth)")
     ap.add_argument("--times", type=int, default=12, help="sample times scored in the nuScenes rig")
     ap.add_argument("--preset", default="fast", choices=("fast", "default"), help="reconstruction preset")
+    ap.add_argument("--half-res-iterations", type=int, default=None,
+                    help="half-resolution iterations (default: the preset's fraction of the cap)")
     args = ap.parse_args()
     scene, world = read_log(args.log_dir), load_world(args.log_dir)
+    cfg = ReconConfig.preset(args.preset)
+    if args.half_res_iterations is not None:  # the coarse stage as a count, not a fraction of the cap
+        views = source_views(scene, cfg.scale_for(scene), channels=default_channels(scene))
+        n_train = len(views) // cfg.frame_stride
+        cap = cfg.train.for_views(n_train).iterations
+        cfg = replace(cfg, train=replace(cfg.train, pyramid_until=(args.half_res_iterations / cap,)))
     wall0, cpu0 = time.perf_counter(), cpu_s()
-    splat = reconstruct(scene, ReconConfig.preset(args.preset), progress=False)
+    splat = reconstruct(scene, cfg, progress=False)
     wall, cpu = time.perf_counter() - wall0, cpu_s() - cpu0
     train = splat.info["train"]
     target = target_rig_scores(splat, scene, world, n_times=args.times)
     regions = target["regions"]["psnr_db"]
     print(json.dumps({
-        "log": scene.log_id, "preset": args.preset, "iterations_cap": train.get("iterations"),
-        "steps": train["steps"],
+        "log": scene.log_id, "preset": args.preset, "half_res_iterations": args.half_res_iterations,
+        "iterations_cap": train.get("iterations"), "steps": train["steps"],
         "stop_reason": train["stop_reason"], "densify_stopped_at": train["densify_stopped_at"],
         "last_heldout_psnr_db": train["validation"][-1][1] if train["validation"] else None,
         "gaussians": splat.num_gaussians(), "seeding_s": round(splat.info["init_seconds"], 1),
