@@ -30,6 +30,9 @@ from nuav2.splat.train import CHECKPOINT_FILE, TrainConfig, Trainer, spread
 
 log = logging.getLogger(__name__)
 
+# The presets' training cap on a long log: this many iterations per training image (TrainConfig.for_views).
+ITERATIONS_PER_VIEW = 4.0
+
 
 @dataclass(frozen=True)
 class ReconConfig:
@@ -55,7 +58,7 @@ class ReconConfig:
     threads: int = 2
     device: str = "auto"
     init: InitConfig = field(default_factory=InitConfig)
-    train: TrainConfig = field(default_factory=lambda: TrainConfig(iterations_per_view=4.0))
+    train: TrainConfig = field(default_factory=lambda: TrainConfig(iterations_per_view=ITERATIONS_PER_VIEW))
     quality: QualityConfig = field(default_factory=QualityConfig)
 
     def __post_init__(self) -> None:
@@ -77,7 +80,7 @@ class ReconConfig:
         return ReconConfig(
             frame_stride=2, sh_degree=0,
             init=InitConfig(max_background=60_000, ground_spacing_m=0.3, ground_radius_m=25.0),
-            train=TrainConfig(iterations=600, iterations_per_view=4.0, pyramid=(0.5, 1.0),
+            train=TrainConfig(iterations=600, iterations_per_view=ITERATIONS_PER_VIEW, pyramid=(0.5, 1.0),
                               pyramid_until=(0.3,),
                               densify=DensifyConfig(start=100, every=100, stop=500, budget=90_000,
                                                     reset_every=0)))

@@ -284,6 +284,7 @@ def test_the_iteration_cap_follows_the_number_of_training_images(tiny_scene):
     assert ReconConfig.fast().train.for_views(140).iterations == 600
     assert ReconConfig.default().train.for_views(272).iterations == 2000
     assert TrainConfig(iterations=50).for_views(10_000).iterations == 50  # off unless asked for
+    assert TrainConfig(iterations=0, iterations_per_view=4.0).for_views(1050).iterations == 0  # seeding only
     cfg = tiny_config(iterations=10)
     cfg = replace(cfg, train=replace(cfg.train, iterations_per_view=0.5, eval_every=0))
     splat = reconstruct(tiny_scene, cfg, progress=False)

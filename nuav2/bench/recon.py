@@ -147,9 +147,8 @@ def config_for(budget: dict, holdout_every: int):
     n = int(budget["iterations"])
     dens = replace(base.train.densify, budget=int(budget["gaussians"]), stop=int(0.8 * n))
     init = replace(base.init, max_background=min(base.init.max_background, int(budget["gaussians"])))
-    per_view = base.train.iterations_per_view if n > 0 else 0.0  # (init-only stays at 0 on any log)
     return replace(base, train_width_px=int(budget["train_width_px"]), holdout_every=holdout_every, init=init,
-                   train=replace(base.train, iterations=n, iterations_per_view=per_view, densify=dens))
+                   train=replace(base.train, iterations=n, densify=dens))
 
 
 def _one_log(log_dir: Path, budgets: list[dict], holdout_every: int, n_times: int,

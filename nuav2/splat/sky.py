@@ -63,14 +63,20 @@ class SkyModel(torch.nn.Module):
 
 
 @lru_cache(maxsize=64)
+def camera_rays(fx: float, fy: float, cx: float, cy: float, width: int, height: int) -> np.ndarray:
+    """(H, W, 3) float64 camera-frame rays (z = 1) through pixel centres (rig convention: centre of pixel u
+    is u), computed once per camera model; read-only."""
+    u, v = np.meshgrid(np.arange(width, dtype=np.float64), np.arange(height, dtype=np.float64))
+    rays = np.stack([(u - cx) / fx, (v - cy) / fy, np.ones_like(u)], -1)
+    rays.flags.writeable = False
+    return rays
+
+
+@lru_cache(maxsize=64)
 def _pixel_rays_cam(fx: float, fy: float, cx: float, cy: float, width: int, height: int,
                     device: str = "cpu") -> torch.Tensor:
-    """(H, W, 3) camera-frame rays through pixel centres (rig convention: centre of pixel u is u),
-    computed on the CPU in float64 (the same values on every device)."""
-    u = torch.arange(width, dtype=torch.float64)
-    v = torch.arange(height, dtype=torch.float64)
-    vv, uu = torch.meshgrid(v, u, indexing="ij")
-    return torch.stack([(uu - cx) / fx, (vv - cy) / fy, torch.ones_like(uu)], -1).float().to(device)
+    """:func:`camera_rays` as float32 on ``device`` (the same values on every device)."""
+    return torch.tensor(camera_rays(fx, fy, cx, cy, width, height)).float().to(device)
 
 
 def pixel_rays(cam: CameraSpec, scene_T_cam: F64, device: torch.device | str = "cpu") -> torch.Tensor:

@@ -11,6 +11,7 @@ import numpy as np
 
 from nuav2.cells import unique_cells
 from nuav2.geometry import F64, T_inverse
+from nuav2.splat.sky import camera_rays
 from nuav2.splat.views import Projection, SourceView, project
 
 if TYPE_CHECKING:
@@ -40,11 +41,10 @@ def elevation_sin(view: SourceView, scene_T_city: F64) -> np.ndarray:
 
 @lru_cache(maxsize=32)
 def _unit_rays_cam(fx: float, fy: float, cx: float, cy: float, width: int, height: int) -> np.ndarray:
-    """(H, W, 3) unit camera-frame rays through the pixel centres (rig convention), shared by every image
-    of a camera: seeding asks for each image's elevations."""
-    u, v = np.meshgrid(np.arange(width, dtype=np.float64), np.arange(height, dtype=np.float64))
-    d = np.stack([(u - cx) / fx, (v - cy) / fy, np.ones_like(u)], -1)
-    d /= np.linalg.norm(d, axis=-1, keepdims=True)
+    """(H, W, 3) unit camera-frame rays through the pixel centres, shared by every image of a camera:
+    seeding asks for each image's elevations."""
+    rays = camera_rays(fx, fy, cx, cy, width, height)
+    d = rays / np.linalg.norm(rays, axis=-1, keepdims=True)
     d.flags.writeable = False
     return d
 

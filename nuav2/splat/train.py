@@ -84,7 +84,9 @@ class TrainConfig:
     def for_views(self, n_views: int) -> TrainConfig:
         """This config for ``n_views`` training images: ``iterations`` raised to ``iterations_per_view`` x
         ``n_views`` where that is more, with densification's stop moved in proportion (the patience rule
-        still ends the run at a plateau)."""
+        still ends the run at a plateau). A seeding-only config (0 iterations) stays one."""
+        if self.iterations <= 0:
+            return self
         n = max(self.iterations, math.ceil(self.iterations_per_view * n_views))
         if n == self.iterations:
             return self
