@@ -132,3 +132,8 @@ def test_accumulate_ignores_invisible_and_nonfinite():
     s = st.stats["background"]
     np.testing.assert_allclose(s.grad.numpy(), [2.0, 0.0, 0.0])
     np.testing.assert_allclose(s.count.numpy(), [1.0, 1.0, 0.0])
+    # the same render given as rows of a larger set adds the same amounts to those rows only
+    st.accumulate("obj:a", grad, vis, 4, 2, rows=torch.tensor([4, 0, 2]), n=6)
+    s = st.stats["obj:a"]
+    np.testing.assert_allclose(s.grad.numpy(), [0.0, 0.0, 0.0, 0.0, 2.0, 0.0])
+    np.testing.assert_allclose(s.count.numpy(), [1.0, 0.0, 0.0, 0.0, 1.0, 0.0])

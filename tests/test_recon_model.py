@@ -17,9 +17,9 @@ from nuav2.splat.scene_model import (
     SplatScene,
     TrackPoses,
     pixel_rays,
-    quat_mul_torch,
     scene_frame_for,
 )
+from nuav2.splat.visible import quat_mul_torch
 
 # OpenCV camera looking along +x of a z-up world (x right = -y world, y down = -z world, z fwd = +x world).
 CAM_R_FORWARD_X = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])

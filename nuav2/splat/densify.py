@@ -75,15 +75,20 @@ class DensifyStrategy:
         return st
 
     def accumulate(self, name: str, grad_px: torch.Tensor, visible: torch.Tensor, width: int,
-                   height: int) -> None:
-        """Add one render's screen-space gradients (N, 2) pixel units of set ``name``."""
-        g = grad_px.detach().clone()
-        g[:, 0] *= width / 2.0
-        g[:, 1] *= height / 2.0
-        st = self._stats_for(name, len(g), g.device)
+                   height: int, rows: torch.Tensor | None = None, n: int | None = None) -> None:
+        """Add one render's screen-space gradients (M, 2) pixel units of set ``name``: of all its
+        Gaussians, or of its ``rows`` (distinct) in a set of ``n`` (a render reaches a third of them)."""
+        g = grad_px.detach() * torch.tensor([width / 2.0, height / 2.0], dtype=grad_px.dtype,
+                                            device=grad_px.device)
+        st = self._stats_for(name, len(g) if rows is None else int(n), g.device)
         norm = torch.nan_to_num(g.norm(dim=-1), nan=0.0, posinf=0.0)
-        st.grad += torch.where(visible, norm, torch.zeros_like(norm))
-        st.count += visible.float()
+        norm = torch.where(visible, norm, torch.zeros_like(norm))
+        if rows is None:
+            st.grad += norm
+            st.count += visible.float()
+        else:
+            st.grad.index_add_(0, rows, norm)
+            st.count.index_add_(0, rows, visible.float())
 
     def due(self, step: int) -> bool:
         c = self.cfg

@@ -28,9 +28,10 @@ import numpy as np
 import torch
 
 from nuav2.atomic import atomic_write_bytes
-from nuav2.geometry import F64, PoseTable, T_inverse, rot_to_quat, translation_T
+from nuav2.geometry import F64, PoseTable, T_inverse, translation_T
 from nuav2.rig import CameraSpec
 from nuav2.splat.sky import SkyModel, inverse_sigmoid, pixel_rays
+from nuav2.splat.visible import gather_all, gather_visible
 
 SH_C0 = 0.28209479177387814
 PARAM_NAMES = ("means", "quats", "log_scales", "opacity_logits", "sh")
@@ -40,16 +41,6 @@ SCENE_FORMAT = "nuav2-splat-scene/1"
 def rgb_to_sh_dc(rgb01: torch.Tensor) -> torch.Tensor:
     """SH DC coefficient whose colour (C0 * c + 0.5) equals ``rgb01``."""
     return (rgb01 - 0.5) / SH_C0
-
-
-def quat_mul_torch(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
-    """Hamilton product a * b of (..., 4) wxyz quaternions (rotation b first, then a)."""
-    aw, ax, ay, az = a.unbind(-1)
-    bw, bx, by, bz = b.unbind(-1)
-    return torch.stack([aw * bw - ax * bx - ay * by - az * bz,
-                        aw * bx + ax * bw + ay * bz - az * by,
-                        aw * by - ax * bz + ay * bw + az * bx,
-                        aw * bz + ax * by - ay * bx + az * bw], -1)
 
 
 @dataclass
@@ -65,6 +56,7 @@ class GaussianSet:
     log_scales: torch.Tensor
     opacity_logits: torch.Tensor
     sh: torch.Tensor
+    _bound: tuple = field(default=(), init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         n = self.means.shape[0]
@@ -109,6 +101,17 @@ class GaussianSet:
 
     def tensors(self) -> dict[str, torch.Tensor]:
         return {name: getattr(self, name) for name in PARAM_NAMES}
+
+    def bounding_radius(self) -> float:
+        """Radius about the set's origin holding every Gaussian's 3-sigma sphere (0 when empty);
+        cached until the means or scales change (an optimizer step bumps their version)."""
+        m, s = self.means, self.log_scales
+        b = self._bound
+        if not (b and b[0] is m and b[1] == m._version and b[2] is s and b[3] == s._version):
+            with torch.no_grad():
+                r = float((m.norm(dim=-1) + 3.0 * s.clamp(max=10.0).exp().amax(-1)).amax()) if len(m) else 0.0
+            self._bound = b = (m, m._version, s, s._version, r)
+        return b[4]
 
     def requires_grad_(self, flag: bool = True) -> GaussianSet:
         for t in self.tensors().values():
@@ -279,29 +282,6 @@ class SceneRender(NamedTuple):
     index: torch.Tensor  # rows of the gathered Gaussians that reached the rasterizer (meta's rows)
 
 
-def frustum_cull(g: dict[str, torch.Tensor], cam: CameraSpec, scene_T_cam: F64, near: float, far: float,
-                 margin: float = 0.3) -> torch.Tensor:
-    """Indices of Gaussians whose 3-sigma sphere may touch the view frustum (widened by ``margin``
-    of the half field of view): everything else costs projection time for nothing."""
-    with torch.no_grad():
-        means = g["means"].detach()
-        if len(means) == 0:
-            return torch.zeros(0, dtype=torch.long, device=means.device)
-        cam_T_scene = T_inverse(scene_T_cam)
-        R = torch.as_tensor(cam_T_scene[:3, :3], dtype=means.dtype, device=means.device)
-        t = torch.as_tensor(cam_T_scene[:3, 3], dtype=means.dtype, device=means.device)
-        p = means @ R.T + t
-        r = 3.0 * torch.exp(g["log_scales"].detach().clamp(max=10.0)).max(-1).values
-        K = cam.K
-        lim_x = max(K[0, 2] + 0.5, cam.width - 0.5 - K[0, 2]) / K[0, 0] * (1 + margin)
-        lim_y = max(K[1, 2] + 0.5, cam.height - 0.5 - K[1, 2]) / K[1, 1] * (1 + margin)
-        z = p[:, 2]
-        keep = (z + r > near) & (z - r < far)
-        keep &= p[:, 0].abs() - r * math.sqrt(1 + lim_x**2) < z.clamp_min(0) * lim_x
-        keep &= p[:, 1].abs() - r * math.sqrt(1 + lim_y**2) < z.clamp_min(0) * lim_y
-        return torch.nonzero(keep).flatten()
-
-
 @dataclass
 class SplatScene:
     """Everything a reconstruction produced; render it from any camera at any time."""
@@ -347,37 +327,7 @@ class SplatScene:
                objects: bool = True) -> tuple[dict[str, torch.Tensor], dict[str, slice]]:
         """All Gaussians in the scene frame at ``timestamp_ns`` (objects moved along their tracks),
         concatenated; autograd flows back to every set's parameters."""
-        parts = [self.background.tensors()]
-        slices = {"background": slice(0, len(self.background))}
-        start = len(self.background)
-        for obj in self.objects if objects else []:
-            if not obj.track.present(timestamp_ns) or len(obj.gaussians) == 0:
-                continue
-            T = obj.track.scene_T_box_at(timestamp_ns)
-            dev = obj.gaussians.means.device
-            R = torch.as_tensor(T[:3, :3], dtype=torch.float32, device=dev)
-            t = torch.as_tensor(T[:3, 3], dtype=torch.float32, device=dev)
-            q_box = torch.as_tensor(rot_to_quat(T[:3, :3]), dtype=torch.float32, device=dev)
-            g = obj.gaussians
-            means = g.means
-            delta = obj.track.delta_at(timestamp_ns)
-            if delta is not None:  # box_T_corrected = [Rz(dyaw) | dxyz], learned (autograd reaches it)
-                c, s = torch.cos(delta[3]), torch.sin(delta[3])
-                zero, one = torch.zeros_like(c), torch.ones_like(c)
-                Rd = torch.stack([torch.stack([c, -s, zero]), torch.stack([s, c, zero]),
-                                  torch.stack([zero, zero, one])])
-                means = means @ Rd.T + delta[:3]
-                half = 0.5 * delta[3]
-                q_d = torch.stack([torch.cos(half), zero, zero, torch.sin(half)])
-                q_box = quat_mul_torch(q_box, q_d)
-            parts.append({"means": means @ R.T + t,
-                          "quats": quat_mul_torch(q_box.expand_as(g.quats), g.quats),
-                          "log_scales": g.log_scales, "opacity_logits": g.opacity_logits, "sh": g.sh})
-            slices[obj.track.key] = slice(start, start + len(g))
-            start += len(g)
-        if len(parts) == 1:
-            return parts[0], slices
-        return {k: torch.cat([p[k] for p in parts]) for k in PARAM_NAMES}, slices
+        return gather_all(self, timestamp_ns, objects)
 
     def render(self, cam: CameraSpec, city_T_cam: F64, timestamp_ns: int, *, sh_degree: int | None = None,
                with_sky: bool = True, objects: bool = True) -> SceneRender:
@@ -385,24 +335,22 @@ class SplatScene:
         from nuav2.splat import rasterize
 
         scene_T_cam = self.scene_T_city @ np.asarray(city_T_cam, np.float64)
-        g, slices = self.gather(timestamp_ns, objects)
+        g, slices, index = gather_visible(self, timestamp_ns, cam, scene_T_cam, objects)
         deg = self.sh_degree if sh_degree is None else min(sh_degree, self.sh_degree)
-        index = frustum_cull(g, cam, scene_T_cam, self.near, self.far)
         dev = self.device
         if len(index) == 0:
             h, w = cam.height, cam.width
             alpha = torch.zeros(h, w, device=dev)
             out_rgb, out_depth, meta = torch.zeros(h, w, 3, device=dev), torch.zeros(h, w, device=dev), {}
         else:
-            sh = g["sh"][index, : (deg + 1) ** 2]
+            sh = g["sh"][:, : (deg + 1) ** 2]
             if deg == 0:  # view-independent: plain RGB skips the per-Gaussian view directions
                 colors, raster_deg = (SH_C0 * sh[:, 0] + 0.5).clamp_min(0.0), None
             else:
                 colors, raster_deg = sh, deg
-            out = rasterize(g["means"][index], g["quats"][index], g["log_scales"][index],
-                            g["opacity_logits"][index], colors, scene_T_cam, raster_K(cam.K), cam.width,
-                            cam.height, near=self.near, far=self.far, sh_degree=raster_deg,
-                            radius_clip=self.radius_clip, backend=self.backend)
+            out = rasterize(g["means"], g["quats"], g["log_scales"], g["opacity_logits"], colors, scene_T_cam,
+                            raster_K(cam.K), cam.width, cam.height, near=self.near, far=self.far,
+                            sh_degree=raster_deg, radius_clip=self.radius_clip, backend=self.backend)
             out_rgb, alpha, out_depth, meta = out.rgb, out.alpha, out.depth, out.meta
         rgb = out_rgb
         if with_sky:
