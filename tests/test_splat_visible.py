@@ -87,7 +87,7 @@ def test_culled_render_equals_rendering_everything():
     city_T_cam = make_T(CAM_R_FORWARD_X, [0.0, 0.0, 1.0])
     t = 5 * 10**8
     out = scene.render(cam, city_T_cam, t, with_sky=False)
-    assert set(out.slices) == {"background", "ahead"}
+    assert set(out.slices) == {"background", "ahead", "behind"}  # both present at t
     everything, _ = scene.gather(t)
     full = rasterize(everything["means"], everything["quats"], everything["log_scales"],
                      everything["opacity_logits"], (SH_C0 * everything["sh"][:, 0] + 0.5).clamp_min(0.0),
@@ -101,10 +101,12 @@ def test_culled_render_equals_rendering_everything():
     assert ahead.gaussians.means.grad is not None and float(ahead.gaussians.means.grad.abs().sum()) > 0
     assert ahead.track.pose_delta.grad is not None
     assert behind.gaussians.means.grad is None and behind.track.pose_delta.grad is None
-    # index holds the kept rows of the slices' numbering, in order
+    # index holds the kept rows of the slices' numbering, in order: all of the object ahead, none behind
     assert torch.all(out.index[1:] > out.index[:-1])
-    sl = out.slices["ahead"]
-    assert set(range(sl.start, sl.stop)) <= set(out.index.tolist())
+    kept = set(out.index.tolist())
+    ahead_rows, behind_rows = (set(range(out.slices[k].start, out.slices[k].stop))
+                               for k in ("ahead", "behind"))
+    assert ahead_rows <= kept and not (behind_rows & kept)
 
 
 def test_objects_are_judged_by_their_whole_extent():
@@ -117,7 +119,8 @@ def test_objects_are_judged_by_their_whole_extent():
     cam = camera()
     city_T_cam = make_T(CAM_R_FORWARD_X, [0.0, 0.0, 1.0])
     out = scene.render(cam, city_T_cam, 5 * 10**8, with_sky=False)
-    assert "behind" in out.slices
+    sl = out.slices["behind"]
+    assert set(range(sl.start, sl.stop)) <= set(out.index.tolist())
 
 
 def test_bounding_radius_follows_in_place_updates():

@@ -153,8 +153,8 @@ def gather_visible(splat: SplatScene, timestamp_ns: int, cam: CameraSpec, scene_
     """The Gaussians that may touch the view, placed and concatenated, with ``slices`` (the rows of
     each set that has any, numbered as if those whole sets were concatenated) and ``index`` (which
     of those rows were kept, in order). Background Gaussians are culled one by one, objects as a
-    whole by a bounding sphere; an object outside the view is left out: it gets no gradient (and no
-    pose prior in training) from this render."""
+    whole by a bounding sphere; an object outside the view costs no differentiable ops (no gradient
+    reaches it from this render) but keeps its slice: it is present, as the trainer needs to know."""
     near, far = splat.near, splat.far
     bg = splat.background.tensors()
     keep = frustum_cull(bg, cam, scene_T_cam, near, far, margin)
@@ -169,12 +169,12 @@ def gather_visible(splat: SplatScene, timestamp_ns: int, cam: CameraSpec, scene_
         p_cam = torch.from_numpy(centres @ cam_T_scene[:3, :3].T + cam_T_scene[:3, 3])
         seen = _spheres_in_view(p_cam, torch.from_numpy(radii), near, far, lim_x, lim_y).tolist()
         for obj, in_view in zip(present, seen):
+            n = len(obj.gaussians)
             if in_view:
-                n = len(obj.gaussians)
                 parts.append(place_object(obj, timestamp_ns))
-                slices[obj.track.key] = slice(start, start + n)
                 index.append(torch.arange(start, start + n, device=keep.device))
-                start += n
+            slices[obj.track.key] = slice(start, start + n)
+            start += n
     kept = torch.cat(index) if len(index) > 1 else index[0]
     if len(parts) == 1:
         return parts[0], slices, kept
