@@ -6,9 +6,10 @@ import math
 
 import numpy as np
 import torch
+from warp_scenes import EGO_R_CAM_FORWARD as CAM_R_FORWARD_X
+from warp_scenes import camera
 
 from nuav2.geometry import make_T, translation_T
-from nuav2.rig import CameraSpec
 from nuav2.splat import rasterize
 from nuav2.splat.scene_model import (
     SH_C0,
@@ -20,14 +21,6 @@ from nuav2.splat.scene_model import (
     raster_K,
 )
 from nuav2.splat.visible import frustum_cull
-
-# OpenCV camera looking along +x of a z-up scene.
-CAM_R_FORWARD_X = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
-
-
-def camera(w: int = 64, h: int = 40, f: float = 40.0) -> CameraSpec:
-    K = np.array([[f, 0.0, (w - 1) / 2], [0.0, f, (h - 1) / 2], [0.0, 0.0, 1.0]])
-    return CameraSpec("CAM", w, h, K, np.eye(4))
 
 
 def random_set(rng: np.random.Generator, n: int, centre, spread: float) -> GaussianSet:
@@ -41,7 +34,7 @@ def test_numba_cull_matches_torch_cull():
     frustum's boundary, where float32 rounding may decide."""
     rng = np.random.default_rng(0)
     g = random_set(rng, 20_000, [0, 0, 0], 30.0)
-    cam = camera()
+    cam = camera(64, 40, 40.0)
     scene_T_cam = make_T(CAM_R_FORWARD_X, [1.0, 2.0, 1.5])
     fast = set(frustum_cull(g.tensors(), cam, scene_T_cam, 0.1, 1000.0).tolist())
     as_f64 = {k: v.double() for k, v in g.tensors().items()}
@@ -52,7 +45,7 @@ def test_numba_cull_matches_torch_cull():
 
 def test_frustum_cull_drops_only_what_cannot_touch_the_view():
     """Rows behind the camera or far outside the field of view go; rows in view stay."""
-    cam = camera()
+    cam = camera(64, 40, 40.0)
     scene_T_cam = make_T(CAM_R_FORWARD_X, [0.0, 0.0, 0.0])
     means = np.array([[10.0, 0, 0], [-10.0, 0, 0], [10.0, 50.0, 0], [10.0, 0, -40.0], [0.05, 0, 0]])
     g = GaussianSet.create(means, np.full((5, 3), 0.5), np.full(5, 0.01))
@@ -83,7 +76,7 @@ def test_culled_render_equals_rendering_everything():
     """The image from the culled gather is the image of all Gaussians; an object behind the camera
     is left out of the render (no slice, no gradient) and the one ahead gets gradients."""
     scene = two_object_scene()
-    cam = camera()
+    cam = camera(64, 40, 40.0)
     city_T_cam = make_T(CAM_R_FORWARD_X, [0.0, 0.0, 1.0])
     t = 5 * 10**8
     out = scene.render(cam, city_T_cam, t, with_sky=False)
@@ -116,7 +109,7 @@ def test_objects_are_judged_by_their_whole_extent():
     behind = scene.objects[1]
     with torch.no_grad():
         behind.gaussians.means[0] = torch.tensor([25.0, 0.0, 1.0])  # 25 m ahead of the box origin
-    cam = camera()
+    cam = camera(64, 40, 40.0)
     city_T_cam = make_T(CAM_R_FORWARD_X, [0.0, 0.0, 1.0])
     out = scene.render(cam, city_T_cam, 5 * 10**8, with_sky=False)
     sl = out.slices["behind"]

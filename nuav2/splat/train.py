@@ -175,25 +175,26 @@ def build_optimizer(splat: SplatScene, cfg: TrainConfig, extent: float) -> torch
     return torch.optim.Adam(groups, lr=1e-3, eps=1e-15, fused=True)
 
 
-def reached_step(optimizer: torch.optim.Optimizer) -> None:
-    """One optimizer step over the groups this render reached, then their gradients cleared.
+def step_groups_with_grads(optimizer: torch.optim.Optimizer) -> None:
+    """One optimizer step over the groups that have a gradient, then their gradients cleared.
 
-    A 15 s log has ~460 groups (five per moving object) and a view reaches ~30: torch would skip
-    the others one by one, which costs more than the fused update of the ones it reached. Same
-    update as ``optimizer.step()``: a group without gradients is left alone either way. Non-finite
-    gradient entries are zeroed first (one bad pixel must not poison Adam's moments)."""
+    A 15 s log has ~460 groups (five per moving object) and a step gives ~30 a gradient (the
+    background, the sky, the present objects): torch would skip the others one by one, which costs
+    more than the fused update of those. Same update as ``optimizer.step()``: a group without
+    gradients is left alone either way. Non-finite gradient entries are zeroed first (one bad pixel
+    must not poison Adam's moments)."""
     every = optimizer.param_groups
-    reached = [g for g in every if any(p.grad is not None for p in g["params"])]
-    for g in reached:
+    with_grads = [g for g in every if any(p.grad is not None for p in g["params"])]
+    for g in with_grads:
         for p in g["params"]:
             if p.grad is not None:
                 torch.nan_to_num_(p.grad, nan=0.0, posinf=0.0, neginf=0.0)
-    optimizer.param_groups = reached
+    optimizer.param_groups = with_grads
     try:
         optimizer.step()
     finally:
         optimizer.param_groups = every
-    for g in reached:
+    for g in with_grads:
         for p in g["params"]:
             p.grad = None
 
@@ -315,7 +316,7 @@ class Trainer:
             self._zero_grads_of_culled(out.slices)
             if m2d is not None and m2d.grad is not None:
                 self._accumulate(out, m2d.grad[0], cam.width, cam.height)
-            reached_step(self.optimizer)
+            step_groups_with_grads(self.optimizer)
         else:
             log.warning("step %d: non-finite loss, skipped", self.step)
             self.optimizer.zero_grad(set_to_none=True)

@@ -115,6 +115,13 @@ def place_object(obj: ObjectModel, timestamp_ns: int) -> dict[str, torch.Tensor]
             "log_scales": g["log_scales"], "opacity_logits": g["opacity_logits"], "sh": g["sh"]}
 
 
+def _concat(parts: list[dict[str, torch.Tensor]]) -> dict[str, torch.Tensor]:
+    """The parts' tensors concatenated per parameter (a single part as it is: no copy)."""
+    if len(parts) == 1:
+        return parts[0]
+    return {k: torch.cat([p[k] for p in parts]) for k in parts[0]}
+
+
 def gather_all(splat: SplatScene, timestamp_ns: int,
                objects: bool = True) -> tuple[dict[str, torch.Tensor], dict[str, slice]]:
     """Every Gaussian in the scene frame at ``timestamp_ns`` (objects moved along their tracks),
@@ -128,9 +135,7 @@ def gather_all(splat: SplatScene, timestamp_ns: int,
         parts.append(place_object(obj, timestamp_ns))
         slices[obj.track.key] = slice(start, start + len(obj.gaussians))
         start += len(obj.gaussians)
-    if len(parts) == 1:
-        return parts[0], slices
-    return {k: torch.cat([p[k] for p in parts]) for k in parts[0]}, slices
+    return _concat(parts), slices
 
 
 def _object_spheres(objs: list[ObjectModel], timestamp_ns: int) -> tuple[F64, F64]:
@@ -141,7 +146,7 @@ def _object_spheres(objs: list[ObjectModel], timestamp_ns: int) -> tuple[F64, F6
         T = obj.track.scene_T_box_at(timestamp_ns)
         with torch.no_grad():
             d = obj.track.delta_at(timestamp_ns)
-        offset = np.zeros(3) if d is None else d.detach().cpu().numpy()[:3].astype(np.float64)
+        offset = np.zeros(3) if d is None else d.cpu().numpy()[:3].astype(np.float64)
         centres[i] = T[:3, :3] @ offset + T[:3, 3]
         radii[i] = obj.gaussians.bounding_radius()
     return centres, radii
@@ -175,7 +180,4 @@ def gather_visible(splat: SplatScene, timestamp_ns: int, cam: CameraSpec, scene_
                 index.append(torch.arange(start, start + n, device=keep.device))
             slices[obj.track.key] = slice(start, start + n)
             start += n
-    kept = torch.cat(index) if len(index) > 1 else index[0]
-    if len(parts) == 1:
-        return parts[0], slices, kept
-    return {k: torch.cat([p[k] for p in parts]) for k in parts[0]}, slices, kept
+    return _concat(parts), slices, torch.cat(index) if len(index) > 1 else index[0]
