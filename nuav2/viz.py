@@ -10,7 +10,6 @@ thinner with dots at their points.
 
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Sequence
 from pathlib import Path
@@ -73,26 +72,21 @@ def project_segments(xyz_lidar: np.ndarray, lidar2img_4x4: np.ndarray, near_m: f
 
 
 def load_predictions(path: str | Path) -> dict[str, Scored]:
-    """MapTR results json (``results`` as a list of {sample_token, vectors} or a dict by token)."""
-    path = Path(path)
+    """A MapTR results json (the reader ``nuav2 eval`` uses) as float64 xy arrays per vector."""
+    from nuav2.evaluate.vector_files import load_predictions as read_results
+
     try:
-        data = json.loads(path.read_text())
-        results = data["results"]
-    except (OSError, ValueError, KeyError, TypeError) as e:
-        raise ValueError(f"{path}: not a MapTR results json with a 'results' field ({e})") from e
-    items = results.items() if isinstance(results, dict) else ((r["sample_token"], r) for r in results)
-    out: dict[str, Scored] = {}
-    for token, rec in items:
-        vecs = rec["vectors"] if isinstance(rec, dict) else rec
-        out[token] = [
-            (
-                v["cls_name"],
-                np.asarray(v["pts"], dtype=np.float64)[:, :2],
-                float(v.get("confidence_level", 1.0)),
-            )
-            for v in vecs
-        ]
-    return out
+        return {token: [(cls, _xy_of(pts, path, token), float(score)) for cls, pts, score in vecs]
+                for token, vecs in read_results(path).items()}
+    except FileNotFoundError as e:
+        raise ValueError(str(e)) from None
+
+
+def _xy_of(pts, path: str | Path, token: str) -> F64:
+    arr = np.asarray(pts, dtype=np.float64)
+    if arr.ndim != 2 or arr.shape[1] < 2:
+        raise ValueError(f"{path}: sample {token}: a vector's pts must be (N, 2) or (N, 3), got {arr.shape}")
+    return arr[:, :2]
 
 
 def _color_bgr(cls: str) -> tuple[int, int, int]:

@@ -17,12 +17,11 @@ from nuav2.evaluate.chamfer_ap import (
     BUFFER_M,
     _sure_candidate_kernel,
     evaluate_vectors,
-    load_gt_file,
-    load_predictions,
     voc_area_ap,
 )
 from nuav2.evaluate.reference_ap import reference_evaluate
 from nuav2.evaluate.resample import resample_polylines
+from nuav2.evaluate.vector_files import load_gt_file, load_predictions
 
 CLASSES = ("divider", "ped_crossing", "boundary", "centerline")
 

@@ -76,7 +76,8 @@ def choose_classes(preds: dict, classes: list[str] | None, pred_path: str) -> tu
 def _run(args: argparse.Namespace) -> int:
     from nuav2.atomic import atomic_write_json
     from nuav2.cli import UsageError
-    from nuav2.evaluate.chamfer_ap import evaluate_vectors, load_gt_file, load_predictions
+    from nuav2.evaluate.chamfer_ap import evaluate_vectors
+    from nuav2.evaluate.vector_files import load_gt_file, load_predictions
 
     preds = load_predictions(args.pred)
     classes, left_out = choose_classes(preds, args.classes, args.pred)
