@@ -28,6 +28,8 @@ import cv2
 import numpy as np
 from numba import njit
 
+from nuav2.zbuffer import nearest_surface
+
 F64 = np.ndarray
 
 
@@ -94,20 +96,6 @@ class Observations:
                 np.concatenate(self.rho2))
 
 
-def nearest_surface(u: F64, v: F64, z: F64, width: int, height: int, cell_px: int, rel_tol: float,
-                    abs_tol_m: float) -> np.ndarray:
-    """Which projected points are the nearest surface in their z-buffer cell (3x3-min dilated, so a
-    far point seen through a gap between near points' pixels is still hidden)."""
-    c = max(1, int(cell_px))
-    gw, gh = (width + c - 1) // c, (height + c - 1) // c
-    cell = (np.clip(np.round(v).astype(np.int64) // c, 0, gh - 1) * gw
-            + np.clip(np.round(u).astype(np.int64) // c, 0, gw - 1))
-    zmin = np.full(gw * gh, np.inf, np.float32)
-    np.minimum.at(zmin, cell, z.astype(np.float32))
-    zmin = cv2.erode(zmin.reshape(gh, gw), np.ones((3, 3), np.uint8), borderType=cv2.BORDER_REPLICATE).ravel()
-    return z <= zmin[cell] * (1 + rel_tol) + abs_tol_m
-
-
 def radius2(u: F64, v: F64, K: F64, width: int, height: int) -> F64:
     """Squared pixel distance from the principal point over the squared half diagonal."""
     half_diag2 = 0.25 * (width**2 + height**2)
@@ -157,6 +145,14 @@ def observe(points: F64, K: F64, width: int, height: int, cam_T_points: F64, ima
     on valid pixels), at most ``cfg.max_observations_per_image``. ``K``/``width``/``height`` describe
     ``image`` (scale them together when reading images reduced). Float32 ``points`` (recentred near the
     cameras: :func:`local_points`) are projected in float32, twice as fast."""
+    idx, u, v = visible_points(points, K, width, height, cam_T_points, valid, cfg)
+    return sample_observations(idx, u, v, image, K, width, height, cfg, rng)
+
+
+def visible_points(points: F64, K: F64, width: int, height: int, cam_T_points: F64,
+                   valid: np.ndarray | None, cfg: ExposureConfig) -> tuple[np.ndarray, F64, F64]:
+    """(point indices, u, v) of the ``points`` an image sees: the half of :func:`observe` that needs no
+    random state, so callers may run it for many images at once."""
     dt = points.dtype if points.dtype == np.float32 else np.float64
     R, t = cam_T_points[:3, :3].astype(dt), cam_T_points[:3, 3].astype(dt)
     front = np.flatnonzero(points @ R[2] > cfg.near_m - t[2])  # depth first: about half are behind
@@ -165,10 +161,15 @@ def observe(points: F64, K: F64, width: int, height: int, cam_T_points: F64, ima
     v = K[1, 1] * p[:, 1] / p[:, 2] + K[1, 2]
     inside = (u > 0) & (u < width - 1) & (v > 0) & (v < height - 1)
     idx, u, v, z = front[inside], u[inside], v[inside], p[inside, 2]
-    vis = nearest_surface(u, v, z, width, height, cfg.cell_px, cfg.depth_rel_tol, cfg.depth_abs_tol_m)
-    if valid is not None:
-        vis &= valid[np.round(v).astype(np.int64), np.round(u).astype(np.int64)]
-    idx, u, v = idx[vis], u[vis], v[vis]
+    vis = nearest_surface(u, v, z, width, height, cfg.cell_px, cfg.depth_rel_tol, cfg.depth_abs_tol_m, valid)
+    return idx[vis], u[vis], v[vis]
+
+
+def sample_observations(idx: np.ndarray, u: F64, v: F64, image: np.ndarray, K: F64, width: int, height: int,
+                        cfg: ExposureConfig, rng: np.random.Generator | None = None
+                        ) -> tuple[np.ndarray, F64, F64]:
+    """At most ``cfg.max_observations_per_image`` of the visible points (a random subset, drawn from
+    ``rng`` in call order), with their RGB and rho^2: the other half of :func:`observe`."""
     if len(idx) > cfg.max_observations_per_image:
         rng = rng or np.random.default_rng(0)
         pick = np.sort(rng.choice(len(idx), cfg.max_observations_per_image, replace=False))

@@ -167,7 +167,7 @@ def reconstruct(scene: SceneLog, config: ReconConfig | None = None, *, progress:
         train_views = [v for v in train_views if id(v) not in keep]
     others = list({id(v): v for v in [*held, *validation]}.values())
     init = initial_scene(scene, train_views, cfg.init, sh_degree=cfg.sh_degree, seed=cfg.seed,
-                         progress=progress, other_views=others)
+                         progress=progress, other_views=others, threads=cfg.threads)
     t_init = time.perf_counter() - t0
     train_cfg = replace(cfg.train, seed=cfg.seed, threads=cfg.threads).for_views(len(train_views))
     if init.budget is not None:  # the Gaussian budget follows the scene (nuav2.splat.budget)

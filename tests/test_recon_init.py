@@ -5,13 +5,14 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 
 from nuav2.geometry import T_from_quat_trans, T_inverse, make_T, translation_T
 from nuav2.rig import CameraSpec
 from nuav2.splat.actors import build_tracks, is_moving, track_motion
-from nuav2.splat.colouring import colour_seeds
+from nuav2.splat.colouring import colour_seeds, zbuffer_visible
 from nuav2.splat.ground import GroundSurface, ground_seeds
 from nuav2.splat.init import InitConfig
 from nuav2.splat.lidar_seeds import (
@@ -22,7 +23,7 @@ from nuav2.splat.lidar_seeds import (
     voxel_downsample,
 )
 from nuav2.splat.scene_model import TrackPoses, scene_frame_for
-from nuav2.splat.views import SourceView, bilinear
+from nuav2.splat.views import Projection, SourceView, bilinear
 
 CAM_R_FORWARD_X = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
 
@@ -117,6 +118,71 @@ def test_colouring_respects_occlusion_and_moves_objects():
     # The sky mask never covers pixels where seeds project, and never looks down.
     sky = bg_col.sky_masks[0]
     assert not sky[h // 2, w // 2] and not sky[-1].any() and sky[0].any()
+
+
+def _zbuffer_numpy(u, v, z, width, height, cell_px, rel_tol, abs_tol_m, valid):
+    """The z-buffer test as numpy spells it (the former implementation): the compiled kernel's oracle."""
+    c = max(1, cell_px)
+    gw, gh = (width + c - 1) // c, (height + c - 1) // c
+    cell = (np.clip(np.round(v).astype(np.int64) // c, 0, gh - 1) * gw
+            + np.clip(np.round(u).astype(np.int64) // c, 0, gw - 1))
+    zmin = np.full(gw * gh, np.inf, np.float32)
+    np.minimum.at(zmin, cell, z.astype(np.float32))
+    zmin = cv2.erode(zmin.reshape(gh, gw), np.ones((3, 3), np.uint8), borderType=cv2.BORDER_REPLICATE).ravel()
+    vis = z <= zmin[cell] * (1 + rel_tol) + abs_tol_m
+    if valid is None:
+        return vis
+    pu, pv = np.round(u).astype(np.int64), np.round(v).astype(np.int64)
+    return vis & valid[np.clip(pv, 0, height - 1), np.clip(pu, 0, width - 1)]
+
+
+@pytest.mark.parametrize("cell_px,dtype,masked", [(1, np.float64, True), (2, np.float64, True),
+                                                   (3, np.float64, False), (2, np.float32, True),
+                                                   (4, np.float32, False)])
+def test_zbuffer_kernel_matches_numpy_oracle(cell_px, dtype, masked):
+    """Half-pixel ties (round half to even), image edges, depth ties at the tolerance, masked pixels,
+    float32 points (the exposure solves) and float64 (seed colouring)."""
+    rng = np.random.default_rng(cell_px)
+    width, height, n = 37, 23, 5000
+    u = rng.uniform(-0.5, width - 0.5, n)
+    v = rng.uniform(-0.5, height - 0.5, n)
+    u[:500] = np.round(u[:500]) + 0.5  # exact .5: banker's rounding decides the cell
+    v[250:750] = np.round(v[250:750]) - 0.5
+    z = rng.uniform(1.0, 60.0, n)
+    z[1000:1200] = 10.0
+    u, v, z = u.astype(dtype), v.astype(dtype), z.astype(dtype)
+    valid = rng.random((height, width)) > 0.2 if masked else None
+    cfg = InitConfig(zbuf_cell_px=cell_px)
+    want = _zbuffer_numpy(u, v, z, width, height, cell_px, cfg.zbuf_rel_tol, cfg.zbuf_abs_tol_m, valid)
+    got = zbuffer_visible(Projection(np.arange(n), u, v, z), width, height, cfg, valid)
+    assert 0 < want.sum() < n
+    np.testing.assert_array_equal(got, want)
+
+
+def test_colouring_on_two_threads_equals_one():
+    """Views are projected on worker threads but merged in order: the result is the same bytes."""
+    rng = np.random.default_rng(0)
+    h, w = 24, 32
+    views = []
+    for k in range(9):
+        img = rng.random((h, w, 3)).astype(np.float32)
+        city_T_cam = make_T(CAM_R_FORWARD_X, [0.4 * k, 0.2 * (k % 3), 0.0])
+        view = _view(img, city_T_cam, ts=10 * k)
+        view.index = k
+        views.append(view)
+    bg = np.column_stack([rng.uniform(3, 30, 4000), rng.uniform(-8, 8, 4000), rng.uniform(-2, 3, 4000)])
+    track = TrackPoses("car", "REGULAR_VEHICLE", np.array([2.0, 1.0, 1.0]), np.array([0, 100], np.int64),
+                       np.stack([translation_T(8.0, -3.0, 0.0), translation_T(12.0, 3.0, 0.0)]))
+    car = rng.uniform(-0.5, 0.5, (200, 3))
+    cfg = InitConfig()
+    one = colour_seeds(bg, {"car": car}, {"car": track}, views, np.eye(4), cfg, threads=1)
+    two = colour_seeds(bg, {"car": car}, {"car": track}, views, np.eye(4), cfg, threads=2)
+    for a, b in ((one[0], two[0]), (one[1]["car"], two[1]["car"])):
+        np.testing.assert_array_equal(a.rgb, b.rgb)
+        np.testing.assert_array_equal(a.seen, b.seen)
+    assert (one[0].seen > 0).sum() > 100 and one[0].seen.max() > 1  # seen, and by several views
+    for k in one[0].sky_masks:
+        np.testing.assert_array_equal(one[0].sky_masks[k], two[0].sky_masks[k])
 
 
 def test_knn_scales_regular_grid():

@@ -6,7 +6,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-import cv2
 import numpy as np
 
 from nuav2.geometry import F64, T_inverse
@@ -14,21 +13,19 @@ from nuav2.progress import progress_bar
 from nuav2.splat.scene_model import TrackPoses
 from nuav2.splat.sky_init import sky_mask
 from nuav2.splat.views import Projection, SourceView, bilinear, project
+from nuav2.threads import ordered_thread_map
+from nuav2.zbuffer import nearest_surface
 
 if TYPE_CHECKING:
     from nuav2.splat.init import InitConfig
 
 
-def zbuffer_visible(proj: Projection, width: int, height: int, cfg: InitConfig) -> np.ndarray:
-    """Which projected points are the nearest surface in their (dilated) z-buffer cell."""
-    c = max(1, cfg.zbuf_cell_px)
-    gw, gh = (width + c - 1) // c, (height + c - 1) // c
-    cell = (np.clip(np.round(proj.v).astype(np.int64) // c, 0, gh - 1) * gw
-            + np.clip(np.round(proj.u).astype(np.int64) // c, 0, gw - 1))
-    zmin = np.full(gw * gh, np.inf, np.float32)
-    np.minimum.at(zmin, cell, proj.z.astype(np.float32))
-    zmin = cv2.erode(zmin.reshape(gh, gw), np.ones((3, 3), np.uint8), borderType=cv2.BORDER_REPLICATE).ravel()
-    return proj.z <= zmin[cell] * (1 + cfg.zbuf_rel_tol) + cfg.zbuf_abs_tol_m
+def zbuffer_visible(proj: Projection, width: int, height: int, cfg: InitConfig,
+                   valid: np.ndarray | None = None) -> np.ndarray:
+    """Which projected points are the nearest surface in their (dilated) z-buffer cell, and (with
+    ``valid``, an (H, W) bool mask) land on a valid pixel."""
+    return nearest_surface(proj.u, proj.v, proj.z, width, height, cfg.zbuf_cell_px, cfg.zbuf_rel_tol,
+                           cfg.zbuf_abs_tol_m, valid)
 
 
 @dataclass
@@ -42,11 +39,12 @@ class SeedColours:
 
 def colour_seeds(background: F64, objects: dict[str, F64], tracks: dict[str, TrackPoses],
                  views: list[SourceView], scene_T_city: F64, cfg: InitConfig, *,
-                 progress: bool = False) -> tuple[SeedColours, dict[str, SeedColours]]:
+                 progress: bool = False, threads: int = 1) -> tuple[SeedColours, dict[str, SeedColours]]:
     """Colour background (scene frame) and object (box frame) seeds from the views that see them.
 
     Objects are placed at each view's own timestamp. Also returns, per view, the sky mask:
     pixels looking above ``sky_min_elevation_deg`` with no seed projected within ``sky_dilate_px``.
+    ``threads``: views projected at once (the result does not depend on it).
     """
     owners = ["background", *objects]
     sizes = [len(background), *(len(objects[t]) for t in objects)]
@@ -59,7 +57,10 @@ def colour_seeds(background: F64, objects: dict[str, F64], tracks: dict[str, Tra
     min_sin = np.sin(np.radians(cfg.sky_min_elevation_deg))
     for tid in objects:
         tracks[tid].prefetch([v.timestamp_ns for v in views])
-    for view in progress_bar(views, desc="colour seeds", unit="img", disable=not progress, leave=False):
+
+    def visible_in(view: SourceView) -> tuple[SourceView, Projection, np.ndarray]:
+        """The seeds this view sees (nearest surface, valid pixel) and its sky mask; independent per
+        view, so it runs on worker threads while the loop below merges views in order."""
         cam_T_scene = T_inverse(scene_T_city @ view.city_T_cam)
         parts = [project(background, view.cam, cam_T_scene)]  # the background as it is (no copy per view)
         for k, tid in enumerate(objects, start=1):
@@ -69,16 +70,21 @@ def colour_seeds(background: F64, objects: dict[str, F64], tracks: dict[str, Tra
                 parts.append(Projection(part.idx + offsets[k], part.u, part.v, part.z))
         proj = parts[0] if len(parts) == 1 else Projection(*(np.concatenate([getattr(q, f) for q in parts])
                                                                for f in ("idx", "u", "v", "z")))
-        vis = zbuffer_visible(proj, view.cam.width, view.cam.height, cfg)
-        pu, pv = np.round(proj.u).astype(np.int64), np.round(proj.v).astype(np.int64)
-        vis &= view.valid[np.clip(pv, 0, view.cam.height - 1), np.clip(pu, 0, view.cam.width - 1)]
-        idx = proj.idx[vis]
-        seen[idx] += 1
-        better = proj.z[vis] < best_z[idx]
+        vis = zbuffer_visible(proj, view.cam.width, view.cam.height, cfg, view.valid)
+        sky = sky_mask(view, scene_T_city, proj, min_sin, cfg.sky_dilate_px)
+        view.image_u8()  # decoded here, off the merging thread
+        return view, Projection(proj.idx[vis], proj.u[vis], proj.v[vis], proj.z[vis]), sky
+
+    bar = progress_bar(total=len(views), desc="colour seeds", unit="img", disable=not progress, leave=False)
+    for view, hit, sky in ordered_thread_map(visible_in, views, threads):
+        seen[hit.idx] += 1
+        better = hit.z < best_z[hit.idx]
         if np.any(better):
-            take = idx[better]
-            rgb[take] = bilinear(view.image(), proj.u[vis][better], proj.v[vis][better])
-            best_z[take] = proj.z[vis][better]
-        sky_masks[view.index] = sky_mask(view, scene_T_city, proj, min_sin, cfg.sky_dilate_px)
+            take = hit.idx[better]
+            rgb[take] = bilinear(view.image(), hit.u[better], hit.v[better])
+            best_z[take] = hit.z[better]
+        sky_masks[view.index] = sky
+        bar.update()
+    bar.close()
     splits = [SeedColours(rgb[a:b], seen[a:b], sky_masks) for a, b in zip(offsets[:-1], offsets[1:])]
     return splits[0], dict(zip(owners[1:], splits[1:]))

@@ -7,10 +7,18 @@ from __future__ import annotations
 
 import numpy as np
 
-from nuav2.exposure import ExposureConfig, ExposureModel, Observations, observe, solve_exposure
+from nuav2.exposure import (
+    ExposureConfig,
+    ExposureModel,
+    Observations,
+    sample_observations,
+    solve_exposure,
+    visible_points,
+)
 from nuav2.geometry import F64, T_inverse
 from nuav2.splat.scene_model import TrackPoses
 from nuav2.splat.views import SourceView
+from nuav2.threads import ordered_thread_map
 from nuav2.warp.depth_proxy import free_of_boxes
 
 
@@ -26,9 +34,10 @@ def free_pixels(view: SourceView, scene_T_city: F64, tracks: list[TrackPoses]) -
 
 def solve_view_exposure(views: list[SourceView], points_scene: F64, scene_T_city: F64,
                         cfg: ExposureConfig | None = None, *, max_points: int = 30_000,
-                        seed: int = 0, tracks: list[TrackPoses] = ()) -> ExposureModel:
+                        seed: int = 0, tracks: list[TrackPoses] = (), threads: int = 1) -> ExposureModel:
     """Exposure model over ``views`` (indexed by ``SourceView.index``, cameras by channel name order)
-    from their raw colours at (a subsample of) static ``points_scene``, off the ``tracks``' boxes."""
+    from their raw colours at (a subsample of) static ``points_scene``, off the ``tracks``' boxes.
+    ``threads``: images looked at in parallel (the result does not depend on it)."""
     cfg = cfg or ExposureConfig()
     rng = np.random.default_rng(seed)
     if len(points_scene) > max_points:
@@ -39,12 +48,19 @@ def solve_view_exposure(views: list[SourceView], points_scene: F64, scene_T_city
     obs = Observations()
     for track in tracks:
         track.prefetch([v.timestamp_ns for v in views])
-    for v in views:
-        camera_of_image[v.index] = channels.index(v.channel)
+
+    def seen_by(v: SourceView) -> tuple[SourceView, np.ndarray, F64, F64, np.ndarray]:
+        """The points ``v`` sees, and its raw pixels: independent per view (worker threads)."""
         cam_T_scene = T_inverse(scene_T_city @ v.city_T_cam)
-        idx, rgb, rho2 = observe(points_scene, v.cam.K, v.cam.width, v.cam.height, cam_T_scene,
-                                 v.raw_image_u8(), free_pixels(v, scene_T_city, list(tracks)), cfg, rng)
-        obs.add(v.index, idx, rgb, rho2)
+        image = v.raw_image_u8()
+        idx, u, pv = visible_points(points_scene, v.cam.K, v.cam.width, v.cam.height, cam_T_scene,
+                                    free_pixels(v, scene_T_city, list(tracks)), cfg)
+        return v, idx, u, pv, image
+
+    for v, idx, u, pv, image in ordered_thread_map(seen_by, views, threads):  # in order: rng draws in order
+        camera_of_image[v.index] = channels.index(v.channel)
+        cam = v.cam
+        obs.add(v.index, *sample_observations(idx, u, pv, image, cam.K, cam.width, cam.height, cfg, rng))
     return solve_exposure(obs, camera_of_image, cfg)
 
 

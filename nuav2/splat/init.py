@@ -113,11 +113,13 @@ class InitResult:
 
 
 def initial_scene(scene: SceneLog, views: list[SourceView], cfg: InitConfig, *, sh_degree: int = 1,
-                  seed: int = 0, progress: bool = False, other_views: list[SourceView] = ()) -> InitResult:
+                  seed: int = 0, progress: bool = False, other_views: list[SourceView] = (),
+                  threads: int = 1) -> InitResult:
     """Seed background, moving objects and sky from the log's LiDAR, ground surface and images.
 
     With ``cfg.exposure`` the views (and ``other_views``, e.g. held-out images) are first brought to
-    the log's reference exposure (:mod:`nuav2.splat.harmonise`)."""
+    the log's reference exposure (:mod:`nuav2.splat.harmonise`). ``threads``: per-image work in parallel
+    (the result does not depend on it)."""
     import torch
 
     from nuav2.splat.scene_model import GaussianSet, ObjectModel, SkyModel, SplatScene, scene_frame_for
@@ -141,7 +143,7 @@ def initial_scene(scene: SceneLog, views: list[SourceView], cfg: InitConfig, *, 
         every = [*views, *other_views]
         exposure = solve_view_exposure(every, bg_pts, scene_T_city, cfg.exposure,
                                        max_points=cfg.exposure_points, seed=seed,
-                                       tracks=list(moving.values()))
+                                       tracks=list(moving.values()), threads=threads)
         set_exposure(every, exposure)
     obj_pts: dict[str, F64] = {}
     for tid, pts in agg.objects.items():
@@ -150,9 +152,10 @@ def initial_scene(scene: SceneLog, views: list[SourceView], cfg: InitConfig, *, 
             extra = box_surface_points(moving[tid].size_lwh, cfg.min_object_points - len(pts), rng)
             pts = np.concatenate([pts, extra])
         obj_pts[tid] = pts
-    bg_col, obj_col = colour_seeds(bg_pts, obj_pts, moving, views, scene_T_city, cfg, progress=progress)
+    bg_col, obj_col = colour_seeds(bg_pts, obj_pts, moving, views, scene_T_city, cfg, progress=progress,
+                                    threads=threads)
 
-    sky_masks = refine_sky_masks(views, bg_col.sky_masks, scene_T_city, cfg.sky_colour_tol)
+    sky_masks = refine_sky_masks(views, bg_col.sky_masks, scene_T_city, cfg.sky_colour_tol, threads=threads)
 
     keep = np.isfinite(bg_col.rgb).all(1) if not cfg.keep_unseen else np.ones(len(bg_pts), bool)
     bg_rgb = np.where(np.isfinite(bg_col.rgb), bg_col.rgb, 0.5)
@@ -200,7 +203,8 @@ def initial_scene(scene: SceneLog, views: list[SourceView], cfg: InitConfig, *, 
                                                                    sh_degree=sh_degree)))
 
     sky = SkyModel(cfg.sky_height, cfg.sky_width)
-    tex = sky_texture_from_views(views, sky_masks, scene_T_city, cfg.sky_height, cfg.sky_width)
+    tex = sky_texture_from_views(views, sky_masks, scene_T_city, cfg.sky_height, cfg.sky_width,
+                                 threads=threads)
     if tex is not None:
         with torch.no_grad():
             p = torch.from_numpy(np.clip(tex, 0.02, 0.98)).float().permute(2, 0, 1)

@@ -13,6 +13,7 @@ from nuav2.cells import unique_cells
 from nuav2.geometry import F64, T_inverse
 from nuav2.splat.sky import camera_rays
 from nuav2.splat.views import Projection, SourceView, project
+from nuav2.threads import ordered_thread_map
 
 if TYPE_CHECKING:
     from nuav2.splat.init import InitConfig
@@ -50,28 +51,29 @@ def _unit_rays_cam(fx: float, fy: float, cx: float, cy: float, width: int, heigh
 
 
 def refine_sky_masks(views: list[SourceView], candidates: dict[int, np.ndarray], scene_T_city: F64,
-                     tol: float = 0.12, n_bins: int = 18) -> dict[int, np.ndarray]:
+                     tol: float = 0.12, n_bins: int = 18, threads: int = 1) -> dict[int, np.ndarray]:
     """Keep only candidate sky pixels whose colour matches the sky at their elevation.
 
     LiDAR does not reach the tops of tall buildings, so "no seed projects here" also marks
     facades above the highest beam. The sky's colour per elevation band is the median over all
     candidates (facades are a minority), and a candidate stays sky only within ``tol`` (RGB
-    distance in [0, 1]) of it."""
-    elev: dict[int, np.ndarray] = {}
-    samples_e, samples_c = [], []
-    for view in views:
+    distance in [0, 1]) of it. ``threads``: views looked at in parallel (same result)."""
+
+    def band_of(view: SourceView) -> np.ndarray:
+        e = elevation_sin(view, scene_T_city)
+        return np.clip((np.arcsin(np.clip(e, -1, 1)) / (np.pi / 2) * n_bins).astype(int), 0, n_bins - 1)
+
+    def samples(view: SourceView) -> tuple[np.ndarray, np.ndarray] | None:
         m = candidates.get(view.index)
         if m is None or not m.any():
-            continue
-        e = elevation_sin(view, scene_T_city)
-        elev[view.index] = e
+            return None
         idx = np.flatnonzero(m.ravel())[::7]  # a subsample is plenty for a median
-        samples_e.append(e.ravel()[idx])
-        samples_c.append(view.image().reshape(-1, 3)[idx])
-    if not samples_e:
+        return band_of(view).ravel()[idx], view.image().reshape(-1, 3)[idx]
+
+    picked = [x for x in ordered_thread_map(samples, views, threads) if x is not None]
+    if not picked:
         return {k: v.copy() for k, v in candidates.items()}
-    se, sc = np.concatenate(samples_e), np.concatenate(samples_c)
-    bins = np.clip((np.arcsin(np.clip(se, -1, 1)) / (np.pi / 2) * n_bins).astype(int), 0, n_bins - 1)
+    bins, sc = np.concatenate([b for b, _ in picked]), np.concatenate([c for _, c in picked])
     ref = np.full((n_bins, 3), np.nan)
     for b in range(n_bins):
         if np.any(bins == b):
@@ -81,17 +83,16 @@ def refine_sky_masks(views: list[SourceView], candidates: dict[int, np.ndarray],
         return {k: v.copy() for k, v in candidates.items()}
     good = np.flatnonzero(ok)
     ref = ref[good[np.argmin(np.abs(good[None, :] - np.arange(n_bins)[:, None]), axis=1)]]  # fill gaps
-    out = {}
-    for view in views:
+
+    def refined(view: SourceView) -> np.ndarray:
         m = candidates.get(view.index)
-        if m is None or view.index not in elev:
-            out[view.index] = np.zeros((view.cam.height, view.cam.width), bool) if m is None else m.copy()
-            continue
-        b = np.clip((np.arcsin(np.clip(elev[view.index], -1, 1)) / (np.pi / 2) * n_bins).astype(int), 0,
-                    n_bins - 1)
-        dist = np.linalg.norm(view.image() - ref[b], axis=-1)
-        out[view.index] = m & (dist < tol)
-    return out
+        if m is None:
+            return np.zeros((view.cam.height, view.cam.width), bool)
+        if not m.any():
+            return m.copy()
+        return m & (np.linalg.norm(view.image() - ref[band_of(view)], axis=-1) < tol)
+
+    return {view.index: mask for view, mask in zip(views, ordered_thread_map(refined, views, threads))}
 
 
 def facade_seeds(views: list[SourceView], candidates: dict[int, np.ndarray], sky: dict[int, np.ndarray],
@@ -143,9 +144,9 @@ def facade_seeds(views: list[SourceView], candidates: dict[int, np.ndarray], sky
 
 
 def sky_texture_from_views(views: list[SourceView], sky_masks: dict[int, np.ndarray], scene_T_city: F64,
-                           height: int, width: int) -> np.ndarray | None:
+                           height: int, width: int, threads: int = 1) -> np.ndarray | None:
     """(H, W, 3) mean sky colour per lat-long bin from the sky pixels, holes filled by row means
-    (then the overall mean); None if no view has a sky pixel."""
+    (then the overall mean); None if no view has a sky pixel. ``threads``: views binned in parallel."""
     import torch
 
     from nuav2.splat.scene_model import SkyModel, pixel_rays
@@ -153,10 +154,12 @@ def sky_texture_from_views(views: list[SourceView], sky_masks: dict[int, np.ndar
     acc = np.zeros((height * width, 3))
     cnt = np.zeros(height * width)
     n_bins = height * width
-    for view in views:
+
+    def binned(view: SourceView) -> tuple[np.ndarray, np.ndarray] | None:
+        """Texture bin and colour of every other sky pixel of a view (worker threads)."""
         m = sky_masks.get(view.index)
         if m is None or not m.any():
-            continue
+            return None
         m = m.copy()
         m[1::2] = False  # every other row and column is plenty for a 32 x 128 texture
         m[:, 1::2] = False
@@ -164,8 +167,12 @@ def sky_texture_from_views(views: list[SourceView], sky_masks: dict[int, np.ndar
         g = SkyModel.direction_to_grid(dirs, width).numpy()
         col = np.clip(np.round((g[:, 0] + 1) / 2 * width).astype(np.int64), 0, width) % width
         row = np.clip(np.round((g[:, 1] + 1) / 2 * (height - 1)).astype(np.int64), 0, height - 1)
-        bins = row * width + col
-        pix = view.image()[m]
+        return row * width + col, view.image()[m]
+
+    for got in ordered_thread_map(binned, views, threads):  # summed in view order: the same bytes
+        if got is None:
+            continue
+        bins, pix = got
         for c in range(3):
             acc[:, c] += np.bincount(bins, weights=pix[:, c], minlength=n_bins)
         cnt += np.bincount(bins, minlength=n_bins)

@@ -109,7 +109,7 @@ def project(points_scene: F64, cam: CameraSpec, cam_T_scene: F64, near: float = 
     return Projection(idx, u, v, z)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _project_kernel(pts, T, fx, fy, cx, cy, width, height, near):  # pragma: no cover - compiled
     n = pts.shape[0]
     idx = np.empty(n, np.int64)

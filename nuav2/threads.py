@@ -1,0 +1,40 @@
+"""Ordered work on a few threads with bounded memory, for per-image loops whose heavy parts (compiled
+kernels, OpenCV, BLAS) release the GIL."""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Callable, Iterable, Iterator
+from concurrent.futures import ThreadPoolExecutor
+from typing import TypeVar
+
+T = TypeVar("T")
+R = TypeVar("R")
+
+
+def ordered_thread_map(fn: Callable[[T], R], items: Iterable[T], workers: int,
+                       window: int | None = None) -> Iterator[R]:
+    """``map(fn, items)`` on ``workers`` threads: results come back in input order, and at most
+    ``window`` (default 2 x workers) are in flight, so a loop over a thousand images never holds a
+    thousand results. One worker (or fewer) runs in the calling thread."""
+    if workers <= 1:
+        yield from map(fn, items)
+        return
+    window = max(1, window or 2 * workers)
+    it = iter(items)
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        pending: deque = deque()
+        for item in it:
+            pending.append(pool.submit(fn, item))
+            if len(pending) >= window:
+                break
+        try:
+            while pending:
+                result = pending.popleft().result()
+                for item in it:
+                    pending.append(pool.submit(fn, item))
+                    break
+                yield result
+        finally:
+            for f in pending:
+                f.cancel()
