@@ -33,7 +33,7 @@ from nuav2.zbuffer import nearest_surface
 F64 = np.ndarray
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _divide_u8(image, falloff, gain, out):  # pragma: no cover - compiled
     """``out = uint8(clip(image / (falloff * gain) + 0.5))`` in float32, one pass (numpy's four passes and
     temporaries cost warp mode a millisecond per source image)."""

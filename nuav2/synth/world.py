@@ -289,6 +289,7 @@ def build_world(seed: int = 0, config: SynthConfig | None = None) -> SyntheticWo
     key = (seed, cfg)
     if key in _CACHE:
         return _CACHE[key]
+    from nuav2.synth import buildings as buildings_mod
     from nuav2.synth import placement
 
     rng = np.random.default_rng(seed)
@@ -329,7 +330,7 @@ def build_world(seed: int = 0, config: SynthConfig | None = None) -> SyntheticWo
         world_layout = plan_layout(plan)
         ego, manoeuvre = ego_motion(world_layout, plan, lrng, duration, speed, cfg.layouts, cfg.lane_change)
         prng = stream(seed, STREAM_PLACE)
-        buildings = placement.place_buildings(plan, world_layout, prng)
+        buildings = buildings_mod.place_buildings(plan, world_layout, prng)
         actors = placement.place_actors(prng, cfg, plan, world_layout, ego, duration)
         timeline = make_timeline(stream(seed, STREAM_TIME), n, channels)
     terrain = flat_terrain()
@@ -343,8 +344,8 @@ def build_world(seed: int = 0, config: SynthConfig | None = None) -> SyntheticWo
         crng = stream(seed, STREAM_CONTENT + 10)
         actors = actors + placement.place_cyclists(crng, cfg, world_layout, ego, duration, actors)
         furniture = placement.place_furniture(crng, plan, world_layout, terrain)
-        buildings = placement.style_facades(buildings, crng)
-    buildings = placement.settle(buildings, terrain, sink_m=0.5)
+        buildings = buildings_mod.style_facades(buildings, crng)
+    buildings = buildings_mod.settle(buildings, terrain, sink_m=0.5)
     sky = make_sky(stream(seed, STREAM_SKY) if cfg.shadows else None)
     log_id = world_log_id(seed, cfg)
     world = SyntheticWorld(seed, cfg, log_id, city_frame, origin, map_layout, world_layout, buildings, actors,
