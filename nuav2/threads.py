@@ -6,10 +6,12 @@ from __future__ import annotations
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ThreadPoolExecutor
+from itertools import islice
 from typing import TypeVar
 
 T = TypeVar("T")
 R = TypeVar("R")
+_DONE = object()
 
 
 def ordered_thread_map(fn: Callable[[T], R], items: Iterable[T], workers: int,
@@ -23,17 +25,13 @@ def ordered_thread_map(fn: Callable[[T], R], items: Iterable[T], workers: int,
     window = max(1, window or 2 * workers)
     it = iter(items)
     with ThreadPoolExecutor(max_workers=workers) as pool:
-        pending: deque = deque()
-        for item in it:
-            pending.append(pool.submit(fn, item))
-            if len(pending) >= window:
-                break
+        pending = deque(pool.submit(fn, item) for item in islice(it, window))
         try:
             while pending:
                 result = pending.popleft().result()
-                for item in it:
-                    pending.append(pool.submit(fn, item))
-                    break
+                nxt = next(it, _DONE)
+                if nxt is not _DONE:
+                    pending.append(pool.submit(fn, nxt))
                 yield result
         finally:
             for f in pending:

@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from nuav2.atomic import atomic_write_bytes
+from nuav2.evaluate.vector_files import load_predictions as read_results
 from nuav2.geometry import F64, T_from_quat_trans, quat_to_rot
 from nuav2.maptr.dataset import load_image_rgb
 from nuav2.maptr.infos import NUSCENES_CAMERAS, lidar2img, sample_info
@@ -73,8 +74,6 @@ def project_segments(xyz_lidar: np.ndarray, lidar2img_4x4: np.ndarray, near_m: f
 
 def load_predictions(path: str | Path) -> dict[str, Scored]:
     """A MapTR results json (the reader ``nuav2 eval`` uses) as float64 xy arrays per vector."""
-    from nuav2.evaluate.vector_files import load_predictions as read_results
-
     try:
         return {token: [(cls, _xy_of(pts, path, token), float(score)) for cls, pts, score in vecs]
                 for token, vecs in read_results(path).items()}

@@ -75,8 +75,8 @@ def colour_seeds(background: F64, objects: dict[str, F64], tracks: dict[str, Tra
         view.image_u8()  # decoded here, off the merging thread
         return view, Projection(proj.idx[vis], proj.u[vis], proj.v[vis], proj.z[vis]), sky
 
-    bar = progress_bar(total=len(views), desc="colour seeds", unit="img", disable=not progress, leave=False)
-    for view, hit, sky in ordered_thread_map(visible_in, views, threads):
+    for view, hit, sky in progress_bar(ordered_thread_map(visible_in, views, threads), total=len(views),
+                                       desc="colour seeds", unit="img", disable=not progress, leave=False):
         seen[hit.idx] += 1
         better = hit.z < best_z[hit.idx]
         if np.any(better):
@@ -84,7 +84,5 @@ def colour_seeds(background: F64, objects: dict[str, F64], tracks: dict[str, Tra
             rgb[take] = bilinear(view.image(), hit.u[better], hit.v[better])
             best_z[take] = hit.z[better]
         sky_masks[view.index] = sky
-        bar.update()
-    bar.close()
     splits = [SeedColours(rgb[a:b], seen[a:b], sky_masks) for a, b in zip(offsets[:-1], offsets[1:])]
     return splits[0], dict(zip(owners[1:], splits[1:]))

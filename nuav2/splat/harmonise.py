@@ -46,6 +46,7 @@ def solve_view_exposure(views: list[SourceView], points_scene: F64, scene_T_city
     n_img = max((v.index for v in views), default=-1) + 1
     camera_of_image = np.zeros(n_img, np.int64)
     obs = Observations()
+    tracks = list(tracks)
     for track in tracks:
         track.prefetch([v.timestamp_ns for v in views])
 
@@ -54,7 +55,7 @@ def solve_view_exposure(views: list[SourceView], points_scene: F64, scene_T_city
         cam_T_scene = T_inverse(scene_T_city @ v.city_T_cam)
         image = v.raw_image_u8()
         idx, u, pv = visible_points(points_scene, v.cam.K, v.cam.width, v.cam.height, cam_T_scene,
-                                    free_pixels(v, scene_T_city, list(tracks)), cfg)
+                                    free_pixels(v, scene_T_city, tracks), cfg)
         return v, idx, u, pv, image
 
     for v, idx, u, pv, image in ordered_thread_map(seen_by, views, threads):  # in order: rng draws in order

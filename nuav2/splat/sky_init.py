@@ -59,21 +59,24 @@ def refine_sky_masks(views: list[SourceView], candidates: dict[int, np.ndarray],
     candidates (facades are a minority), and a candidate stays sky only within ``tol`` (RGB
     distance in [0, 1]) of it. ``threads``: views looked at in parallel (same result)."""
 
-    def band_of(view: SourceView) -> np.ndarray:
-        e = elevation_sin(view, scene_T_city)
-        return np.clip((np.arcsin(np.clip(e, -1, 1)) / (np.pi / 2) * n_bins).astype(int), 0, n_bins - 1)
-
-    def samples(view: SourceView) -> tuple[np.ndarray, np.ndarray] | None:
+    def samples(view: SourceView) -> tuple[int, np.ndarray, np.ndarray, np.ndarray] | None:
+        """The view's elevation band per pixel (kept for the second pass; uint8, an eighth of the
+        elevations' memory) and a subsample of its candidates' bands and colours."""
         m = candidates.get(view.index)
         if m is None or not m.any():
             return None
+        e = elevation_sin(view, scene_T_city)
+        band = np.clip((np.arcsin(np.clip(e, -1, 1)) / (np.pi / 2) * n_bins).astype(int), 0,
+                       n_bins - 1).astype(np.uint8)
         idx = np.flatnonzero(m.ravel())[::7]  # a subsample is plenty for a median
-        return band_of(view).ravel()[idx], view.image().reshape(-1, 3)[idx]
+        return view.index, band, band.ravel()[idx], view.image().reshape(-1, 3)[idx]
 
     picked = [x for x in ordered_thread_map(samples, views, threads) if x is not None]
     if not picked:
         return {k: v.copy() for k, v in candidates.items()}
-    bins, sc = np.concatenate([b for b, _ in picked]), np.concatenate([c for _, c in picked])
+    band_of = {index: band for index, band, _, _ in picked}
+    bins = np.concatenate([b for _, _, b, _ in picked])
+    sc = np.concatenate([c for _, _, _, c in picked])
     ref = np.full((n_bins, 3), np.nan)
     for b in range(n_bins):
         if np.any(bins == b):
@@ -90,7 +93,7 @@ def refine_sky_masks(views: list[SourceView], candidates: dict[int, np.ndarray],
             return np.zeros((view.cam.height, view.cam.width), bool)
         if not m.any():
             return m.copy()
-        return m & (np.linalg.norm(view.image() - ref[band_of(view)], axis=-1) < tol)
+        return m & (np.linalg.norm(view.image() - ref[band_of[view.index]], axis=-1) < tol)
 
     return {view.index: mask for view, mask in zip(views, ordered_thread_map(refined, views, threads))}
 
