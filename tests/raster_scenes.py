@@ -49,9 +49,9 @@ def leaves(params: dict[str, torch.Tensor], requires_grad: bool = True) -> list[
 def weighted_loss(out, seed: int = 0) -> torch.Tensor:
     """A scalar touching rgb, alpha and depth with random per-pixel weights."""
     g = torch.Generator().manual_seed(seed)
-    wr = torch.rand(out.rgb.shape, generator=g, dtype=torch.float64).to(out.rgb.dtype)
-    wa = torch.rand(out.alpha.shape, generator=g, dtype=torch.float64).to(out.rgb.dtype)
-    wd = torch.rand(out.depth.shape, generator=g, dtype=torch.float64).to(out.rgb.dtype)
+    wr = torch.rand(out.rgb.shape, generator=g, dtype=torch.float64).to(out.rgb)
+    wa = torch.rand(out.alpha.shape, generator=g, dtype=torch.float64).to(out.rgb)
+    wd = torch.rand(out.depth.shape, generator=g, dtype=torch.float64).to(out.rgb)
     return (out.rgb * wr).sum() + (out.alpha * wa).sum() + 0.05 * (out.depth * wd).sum()
 
 

@@ -8,6 +8,9 @@ compiles its kernels, so run it twice there and keep the second:
 
     nuav2 synth --seed 0 --preset easy --seconds 15 LOGS
     PYTHONPATH=DIR python docs/ablation/recon_long_log.py LOGS/train/<log_id>
+
+``--device cuda`` trains and renders on the GPU with gsplat (the GPU figure in docs/cluster.md);
+CPU seconds then count the host threads only.
 """
 
 from __future__ import annotations
@@ -39,9 +42,10 @@ def main() -> None:
     ap.add_argument("--preset", default="fast", choices=("fast", "default"), help="reconstruction preset")
     ap.add_argument("--half-res-iterations", type=int, default=None,
                     help="half-resolution iterations (default: the preset's fraction of the cap)")
+    ap.add_argument("--device", default="cpu", help="cpu (default), cuda or auto (see nuav2.recon)")
     args = ap.parse_args()
     scene, world = read_log(args.log_dir), load_world(args.log_dir)
-    cfg = ReconConfig.preset(args.preset)
+    cfg = replace(ReconConfig.preset(args.preset), device=args.device)
     if args.half_res_iterations is not None:  # the coarse stage as a count, not a fraction of the cap
         views = source_views(scene, cfg.scale_for(scene), channels=default_channels(scene))
         n_train = len(views) // cfg.frame_stride
@@ -54,7 +58,8 @@ def main() -> None:
     target = target_rig_scores(splat, scene, world, n_times=args.times)
     regions = target["regions"]["psnr_db"]
     print(json.dumps({
-        "log": scene.log_id, "preset": args.preset, "half_res_iterations": args.half_res_iterations,
+        "log": scene.log_id, "preset": args.preset, "device": splat.info["device"],
+        "half_res_iterations": args.half_res_iterations,
         "iterations_cap": train.get("iterations"), "steps": train["steps"],
         "stop_reason": train["stop_reason"], "densify_stopped_at": train["densify_stopped_at"],
         "last_heldout_psnr_db": train["validation"][-1][1] if train["validation"] else None,

@@ -6,8 +6,9 @@ Steps, each timed: (1) the environment (torch, CUDA, gsplat) and a first gsplat 
 includes gsplat's one-time CUDA compile where its extension is not prebuilt; (2) ``pytest`` on
 the CUDA tests (tests/test_raster_gsplat_parity.py, tests/test_recon_cuda.py); (3) a synthetic
 log (default 2 s, the benchmark's default log) reconstructed with the ``fast`` preset on each
-device, scored in the nuScenes rig against the world's truth (PSNR) with wall seconds. Sized for
-about 3 minutes on one GPU plus 2 CPU threads, after compiles. ``--dry-run`` runs what a CPU-only
+device, scored in the nuScenes rig against the world's truth (PSNR) with wall seconds. On an H100
+with 16 cores it took 2.5 minutes after gsplat's 76 s compile (tests 76 s, the 2 s log on both
+devices 62 s; docs/ablation/gpu_check_h100.json). ``--dry-run`` runs what a CPU-only
 machine can (the CPU reconstruction, tiny with ``--seconds``/``--iterations``) to check the script.
 """
 
