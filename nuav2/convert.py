@@ -8,6 +8,7 @@ with tables byte-identical to an uninterrupted run.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import logging
@@ -270,6 +271,7 @@ def convert_av2(src: Path, out: Path, options: ConvertOptions | None = None) -> 
     options.check()
     out = Path(out)
     logs = find_logs(Path(src))  # a bad SRC fails here, before OUT is created
+    created = not out.exists()
     prepare_output_dir(out)
     fingerprint = options.fingerprint()
     earlier = earlier_shards(out, options.version, fingerprint, {p.name for p in logs})
@@ -288,7 +290,13 @@ def convert_av2(src: Path, out: Path, options: ConvertOptions | None = None) -> 
     if earlier:
         log.info("%s also holds %d log(s) converted earlier with the same options; they are merged too",
                  out, len(earlier))
-    results = _run(jobs, out, options)
+    try:
+        results = _run(jobs, out, options)
+    except ConvertError:  # the executor could not start (no Ray): leave no empty OUT behind
+        if created:
+            with contextlib.suppress(OSError):
+                out.rmdir()  # only when still empty
+        raise
     report.logs = {r["log_id"]: r.pop("summary") for r in results}
     for r in results:
         if r["error"] is None:

@@ -14,7 +14,9 @@ import time
 from pathlib import Path
 
 import pytest
-from test_executor_support import convert, descendants_named, infos_files, tables
+from test_executor_support import VERSION, convert, descendants_named, infos_files, tables
+
+from nuav2.cli import main
 
 ray = pytest.importorskip("ray", reason="the ray package is not installed (pip install 'nuav2[ray]')")
 
@@ -83,3 +85,23 @@ def test_an_address_with_no_cluster_is_a_one_line_error(synth_split: Path, tmp_p
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1
     assert err[0].startswith(f"nuav2 convert: --ray-address: Ray cluster '{address}' does not answer")
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_local_ray_that_cannot_start_is_a_one_line_error(synth_split: Path, reference_out: Path,
+                                                           tmp_path: Path, monkeypatch, capsys):
+    assert not ray.is_initialized()
+    blocker = tmp_path / "a-file"
+    blocker.write_text("")
+    monkeypatch.setenv("RAY_TMPDIR", str(blocker / "tmp"))  # Ray cannot make its session folder under a file
+    assert convert(synth_split, tmp_path / "out", "--executor", "ray") == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1
+    assert err[0].startswith("nuav2 convert: --executor ray: a local Ray instance did not start (")
+    assert "Not a directory" in err[0] and f"Ray's logs: {blocker / 'tmp'}" in err[0]
+    assert not ray.is_initialized() and not (tmp_path / "out").exists()  # no empty OUT left behind
+    argv = ["infos", str(reference_out), "--version", VERSION, "--out", str(tmp_path / "infos")]
+    assert main([*argv, "--executor", "ray"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1
+    assert err[0].startswith("nuav2 infos: --executor ray: a local Ray instance did not start (")

@@ -17,6 +17,7 @@ import logging
 import math
 import os
 import socket
+import tempfile
 import uuid
 from collections.abc import Iterator
 from dataclasses import replace
@@ -38,6 +39,18 @@ DEFAULT_MEMORY_GB = {"native": 2.0, "warp": 4.0, "render": 8.0}
 
 class RayMissingError(ImportError):
     """``--executor ray`` where the ray package is not installed."""
+
+
+class RayStartError(ConnectionError):
+    """A local Ray instance (no ``--ray-address``) did not start."""
+
+
+def local_start_failure(e: BaseException) -> str:
+    """One line for a local Ray start that failed: Ray's own first line and where its logs are."""
+    first = (str(e).strip().splitlines() or [type(e).__name__])[0]
+    logs = Path(os.environ.get("RAY_TMPDIR") or tempfile.gettempdir()) / "ray" / "session_latest" / "logs"
+    return (f"--executor ray: a local Ray instance did not start ({first}); Ray's logs: {logs}; "
+            "or pass --ray-address of a running cluster")
 
 
 def ray_available() -> bool:
@@ -74,8 +87,11 @@ def connected(address: str | None = None, num_cpus: float | None = None) -> Iter
             raise ConnectionError(f"Ray cluster {address!r}: {(str(e).splitlines() or [''])[0]}") from e
     else:
         # "local": a new instance, even where `ray start` left a cluster (or its address file) behind
-        ray.init(address="local", num_cpus=num_cpus, include_dashboard=False, log_to_driver=False,
-                 object_store_memory=LOCAL_OBJECT_STORE_BYTES, logging_level=logging.WARNING)
+        try:
+            ray.init(address="local", num_cpus=num_cpus, include_dashboard=False, log_to_driver=False,
+                     object_store_memory=LOCAL_OBJECT_STORE_BYTES, logging_level=logging.WARNING)
+        except Exception as e:  # Ray raises a bare Exception when its raylet or GCS does not come up
+            raise RayStartError(local_start_failure(e)) from e
     try:
         yield ray
     finally:
@@ -258,6 +274,8 @@ def run_ray(jobs: list[Path], dataroot: Path, options, progress: BatchProgress,
     try:
         with connected(options.ray_address, num_cpus=local_cpus) as ray:
             return _run_connected(ray, jobs, Path(dataroot).resolve(), options, progress, fault)
+    except RayStartError as e:
+        raise ConvertError(str(e)) from e
     except ConnectionError as e:
         raise ConvertError(f"--ray-address: {e}") from e
 
