@@ -284,3 +284,30 @@ def test_ground_off_the_raster_continues_it_from_lidar_then_the_ego_plane(fixtur
     assert both.sum() > 50 and np.median(np.abs(zl[np.isfinite(zl)][both] - zr[both])) < 0.1
     # Without LiDAR the plane under the nearest pose takes over: finite everywhere.
     assert np.all(np.isfinite(plane_only(g)))
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+def test_depth_targets_read_each_sweep_once_and_match_one_view_at_a_time(tmp_path, threads):
+    import dataclasses
+
+    import device_scenes as ds
+
+    from nuav2.splat.train_views import lidar_depth_by_view, lidar_depth_samples
+    from nuav2.splat.views import source_views
+
+    scene = ds.tiny_scene(tmp_path)
+    reads: list[int] = []
+
+    def counted(ref):
+        reads.append(ref.timestamp_ns)
+        return scene.load_lidar(ref)
+
+    counting = dataclasses.replace(scene, load_lidar=counted)
+    views = source_views(scene, 1.0)
+    scene_T_city = T_inverse(scene.city_T_ego_at(int(scene.sweep_timestamps_ns[0])))
+    got = lidar_depth_by_view(counting, views, scene_T_city, threads=threads)
+    assert len(reads) == len(set(reads)) == len(scene.lidar_sweeps)  # every sweep once, none twice
+    assert len({v.channel for v in views}) == 7 and len(views) > len(reads)
+    for v, uvz in zip(views, got, strict=True):
+        np.testing.assert_array_equal(uvz, lidar_depth_samples(scene, v, scene_T_city))
+    assert sum(len(u) > 100 for u in got) >= len(views) // 2

@@ -28,7 +28,7 @@ from nuav2.splat.densify import DensifyConfig, DensifyStrategy
 from nuav2.splat.device import to_cpu
 from nuav2.splat.losses import depth_loss, photometric_loss, psnr, sky_loss
 from nuav2.splat.scene_model import GaussianSet, SplatScene, TrackPoses
-from nuav2.splat.train_views import ViewData, lidar_depth_samples
+from nuav2.splat.train_views import ViewData, lidar_depth_by_view
 from nuav2.splat.views import SourceView
 
 log = logging.getLogger(__name__)
@@ -254,10 +254,9 @@ class Trainer:
         self.rng = np.random.default_rng(cfg.seed)
         self.extent = scene_extent(views, cfg.extent_min_m)
         scene_T_city = splat.scene_T_city
-        cache: dict = {}
-        self.data = [ViewData(v, sky_masks.get(v.index, np.zeros((v.cam.height, v.cam.width), bool)),
-                              lidar_depth_samples(scene, v, scene_T_city, sweep_cache=cache), self.device)
-                     for v in views]
+        depths = lidar_depth_by_view(scene, views, scene_T_city, threads=cfg.threads)
+        self.data = [ViewData(v, sky_masks.get(v.index, np.zeros((v.cam.height, v.cam.width), bool)), uvz,
+                              self.device) for v, uvz in zip(views, depths)]
         self.optimizer = build_optimizer(splat, cfg, self.extent)
         self.strategy = DensifyStrategy(cfg.densify, self.extent)
         self.boxes = {f"obj:{o.track.key}": o.track.size_lwh for o in splat.objects}

@@ -15,6 +15,7 @@ import torch
 from nuav2.geometry import F64, T_inverse
 from nuav2.scene import SceneLog
 from nuav2.splat.views import SourceView, project
+from nuav2.threads import ordered_thread_map
 
 
 @dataclass
@@ -49,30 +50,57 @@ class ViewData:
         return cam, img.float() / 255.0, valid, sky, uvz
 
 
+def nearest_sweep(scene: SceneLog, timestamp_ns: int) -> int:
+    """Index of the LiDAR sweep nearest a camera timestamp (the earlier one on a tie)."""
+    return int(np.argmin(np.abs(scene.sweep_timestamps_ns - timestamp_ns)))
+
+
 def lidar_depth_samples(scene: SceneLog, view: SourceView, scene_T_city: F64, max_points: int = 20_000,
-                        max_depth_m: float = 150.0, sweep_cache: dict | None = None) -> np.ndarray:
+                        max_depth_m: float = 150.0, scene_pts: np.ndarray | None = None) -> np.ndarray:
     """LiDAR z-depth in a view from the sweep nearest its timestamp: (M, 3) u, v, z float32.
 
-    ``sweep_cache`` (sweep timestamp -> scene-frame points) avoids re-reading a sweep that
-    several views share."""
+    ``scene_pts``: that sweep already read, in the scene frame (:func:`lidar_depth_by_view` reads
+    each sweep once for all the views that share it)."""
     if not scene.lidar_sweeps:
         return np.zeros((0, 3), np.float32)
-    ts = scene.sweep_timestamps_ns
-    ref = scene.lidar_sweeps[int(np.argmin(np.abs(ts - view.timestamp_ns)))]
-    key = int(ref.timestamp_ns)
-    if sweep_cache is None or key not in sweep_cache:
-        scene_T_ego = scene_T_city @ scene.city_T_ego_at(key)
-        pts = scene.sweep(ref).xyz_ego @ scene_T_ego[:3, :3].T + scene_T_ego[:3, 3]
-        if sweep_cache is not None:
-            sweep_cache.clear()  # views come grouped by camera, sorted by time: keep one sweep
-            sweep_cache[key] = pts
-    else:
-        pts = sweep_cache[key]
+    if scene_pts is None:
+        scene_pts = sweep_in_scene(scene, nearest_sweep(scene, view.timestamp_ns), scene_T_city)
     cam_T_scene = T_inverse(scene_T_city @ view.city_T_cam)
-    proj = project(pts, view.cam, cam_T_scene, near=0.5)
+    proj = project(scene_pts, view.cam, cam_T_scene, near=0.5)
     ok = proj.z < max_depth_m
     uvz = np.column_stack([proj.u[ok], proj.v[ok], proj.z[ok]]).astype(np.float32)
     pv = np.clip(np.round(uvz[:, 1]).astype(int), 0, view.cam.height - 1)
     pu = np.clip(np.round(uvz[:, 0]).astype(int), 0, view.cam.width - 1)
     uvz = uvz[view.valid[pv, pu]]
     return uvz[:max_points]
+
+
+def sweep_in_scene(scene: SceneLog, index: int, scene_T_city: F64) -> np.ndarray:
+    """Sweep ``index``'s points in the scene frame, float64 (N, 3)."""
+    ref = scene.lidar_sweeps[index]
+    scene_T_ego = scene_T_city @ scene.city_T_ego_at(int(ref.timestamp_ns))
+    return scene.sweep(ref).xyz_ego @ scene_T_ego[:3, :3].T + scene_T_ego[:3, 3]
+
+
+def lidar_depth_by_view(scene: SceneLog, views: list[SourceView], scene_T_city: F64,
+                        threads: int = 1) -> list[np.ndarray]:
+    """:func:`lidar_depth_samples` of every view, in order, reading each sweep once (the views that
+    share a nearest sweep are done together: the 7 ring cameras of a frame share one) on
+    ``threads`` threads."""
+    if not scene.lidar_sweeps:
+        return [np.zeros((0, 3), np.float32) for _ in views]
+    ts = scene.sweep_timestamps_ns
+    nearest = np.abs(ts[None, :] - np.array([v.timestamp_ns for v in views], np.int64)[:, None]).argmin(1)
+    groups: dict[int, list[int]] = {}
+    for i, k in enumerate(nearest.tolist()):
+        groups.setdefault(k, []).append(i)
+
+    def one_sweep(item: tuple[int, list[int]]) -> list[tuple[int, np.ndarray]]:
+        pts = sweep_in_scene(scene, item[0], scene_T_city)
+        return [(i, lidar_depth_samples(scene, views[i], scene_T_city, scene_pts=pts)) for i in item[1]]
+
+    out: list[np.ndarray | None] = [None] * len(views)
+    for done in ordered_thread_map(one_sweep, sorted(groups.items()), threads):
+        for i, uvz in done:
+            out[i] = uvz
+    return out  # type: ignore[return-value]

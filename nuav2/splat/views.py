@@ -28,13 +28,14 @@ class SourceView:
     city_T_cam: F64
     valid: np.ndarray = field(repr=False)  # (H, W) bool, False under the ego-body mask
     exposure: ExposureModel | None = field(default=None, repr=False)  # corrects image ``index`` when set
+    source_size: tuple[int, int] | None = None  # (width, height) of the file, from the rig: decode smaller
     _image: np.ndarray | None = field(default=None, repr=False)
 
     def image_u8(self) -> np.ndarray:
         """(H, W, 3) uint8 RGB at the training resolution (kept in memory: 4x smaller than float), at the
         log's reference exposure once :meth:`set_exposure` has been called."""
         if self._image is None:
-            img = load_image_u8(self.path, self.cam.width, self.cam.height)
+            img = load_image_u8(self.path, self.cam.width, self.cam.height, self.source_size)
             self._image = img if self.exposure is None else self.exposure.correct(img, self.index, self.cam.K)
         return self._image
 
@@ -42,7 +43,7 @@ class SourceView:
         """The image as the camera took it (no exposure correction; not cached)."""
         if self.exposure is None:
             return self.image_u8()
-        return load_image_u8(self.path, self.cam.width, self.cam.height)
+        return load_image_u8(self.path, self.cam.width, self.cam.height, self.source_size)
 
     def set_exposure(self, model: ExposureModel | None) -> None:
         """Correct this image (``index``) with ``model`` from now on."""
@@ -55,9 +56,27 @@ class SourceView:
         return img.astype(np.float32) / 255.0 if img.dtype == np.uint8 else img.astype(np.float32)
 
 
-def load_image_u8(path: Path, width: int, height: int) -> np.ndarray:
-    """Read an image file as uint8 RGB, area-resized to width x height."""
-    bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
+_REDUCED_JPEG = {2: cv2.IMREAD_REDUCED_COLOR_2, 4: cv2.IMREAD_REDUCED_COLOR_4, 8: cv2.IMREAD_REDUCED_COLOR_8}
+
+
+def jpeg_reduction(path: Path, source_size: tuple[int, int] | None, width: int, height: int) -> int:
+    """The largest factor (1, 2, 4 or 8) a JPEG can be decoded smaller by, exactly: it divides both sides
+    of ``source_size`` (so the pixel grid keeps its scale, and the intrinsics stay exact) and leaves at
+    least ``width`` x ``height``. A 2048x1550 AV2 image trained at 256 px decodes at half size, twice
+    as fast; other formats and unknown sizes decode in full."""
+    if source_size is None or Path(path).suffix.lower() not in (".jpg", ".jpeg"):
+        return 1
+    w0, h0 = source_size
+    return max([1] + [f for f in _REDUCED_JPEG if w0 % f == 0 and h0 % f == 0
+                      and w0 // f >= width and h0 // f >= height])
+
+
+def load_image_u8(path: Path, width: int, height: int,
+                  source_size: tuple[int, int] | None = None) -> np.ndarray:
+    """Read an image file as uint8 RGB, area-resized to width x height (decoded at a reduced size first
+    where :func:`jpeg_reduction` allows, given the file's ``source_size``)."""
+    f = jpeg_reduction(path, source_size, width, height)
+    bgr = cv2.imread(str(path), _REDUCED_JPEG[f] if f > 1 else cv2.IMREAD_COLOR)
     if bgr is None:
         raise ValueError(f"{path}: camera image missing or unreadable")
     if bgr.shape[:2] != (height, width):
@@ -83,7 +102,7 @@ def source_views(scene: SceneLog, image_scale: float, *, frame_stride: int = 1,
         for f in frames[::frame_stride]:
             city_T_cam = scene.city_T_ego_at(int(f.timestamp_ns)) @ cam.ego_T_cam
             views.append(SourceView(len(views), cam.channel, int(f.timestamp_ns), Path(f.path), small,
-                                    city_T_cam, valid))
+                                    city_T_cam, valid, source_size=(cam.width, cam.height)))
     return views
 
 
