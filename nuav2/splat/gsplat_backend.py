@@ -19,9 +19,12 @@ from __future__ import annotations
 
 import functools
 import importlib.util
+import os
+from pathlib import Path
 
 import torch
 
+from nuav2.machine_lock import machine_lock
 from nuav2.splat._inputs import Cameras, background_rows, finite_colors
 from nuav2.splat.constants import (
     EPS2D,
@@ -29,6 +32,24 @@ from nuav2.splat.constants import (
     LOG_SCALE_MIN,
     QUAT_EPS,
 )
+
+
+def gsplat_build_lock_path() -> Path:
+    """Where processes on one machine queue for gsplat's CUDA build (beside torch's extension cache)."""
+    root = os.environ.get("TORCH_EXTENSIONS_DIR") or Path.home() / ".cache" / "torch_extensions"
+    return Path(root) / "nuav2-gsplat-build.lock"
+
+
+@functools.lru_cache(maxsize=1)
+def load_gsplat_cuda() -> bool:
+    """Load gsplat's CUDA extension in this process, one process per machine at a time. gsplat
+    compiles it on first use, and an importing process starts by deleting the build folder's lock
+    and, while no library is built there yet, the folder (gsplat 1.5.3, ``cuda/_backend.py``): render
+    tasks starting together on a fresh node broke each other's builds. Queued here, the first one
+    compiles and the others load its library. True when the extension loaded."""
+    with machine_lock(gsplat_build_lock_path()):
+        from gsplat.cuda._backend import _C
+    return _C is not None
 
 
 @functools.lru_cache(maxsize=1)
@@ -87,6 +108,9 @@ def rasterize_gsplat(means, quats, log_scales, opacity_logits, colors, cams: Cam
     """Render through ``gsplat.rasterization`` (classic mode, RGB+ED) and repackage the outputs."""
     import gsplat
 
+    if not load_gsplat_cuda():
+        raise RuntimeError("gsplat's CUDA extension did not build or load (gsplat printed why); "
+                           "use --device cpu to train on the CPU")
     renders, alphas, meta = gsplat.rasterization(
         **gsplat_inputs(means, quats, log_scales, opacity_logits, colors, cams), width=width, height=height,
         near_plane=near, far_plane=far, radius_clip=radius_clip, eps2d=EPS2D, sh_degree=sh_degree,
