@@ -5,9 +5,11 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from converters.av2 import read_log
-from nuav2.splat.views import jpeg_reduction, load_image_u8, source_views
+from nuav2.image_decode import jpeg_reduction, load_image_u8
+from nuav2.splat.views import source_views
 from nuav2.synth import SynthConfig, generate_log
 
 
@@ -22,15 +24,37 @@ def test_reduction_factor_divides_the_image_exactly_and_keeps_the_training_size(
     assert jpeg_reduction(jpg, None, 256, 194) == 1
 
 
-def test_a_reduced_decode_matches_the_full_decode_resized(tmp_path):
-    log = generate_log(tmp_path, seed=0, config=SynthConfig(seconds=0.1, image_scale=0.25))
-    views = source_views(read_log(log), 0.5)
+@pytest.fixture(scope="module")
+def quarter_log(tmp_path_factory) -> Path:
+    """A 0.1 s synthetic log at a quarter of AV2's resolution (512x388 ring cameras)."""
+    config = SynthConfig(seconds=0.1, image_scale=0.25)
+    return generate_log(tmp_path_factory.mktemp("quarter"), seed=0, config=config)
+
+
+def psnr(a: np.ndarray, b: np.ndarray) -> float:
+    mse = float(np.mean((a.astype(np.float64) - b) ** 2))
+    return 10 * np.log10(255**2 / max(mse, 1e-12))
+
+
+def test_a_reduced_decode_matches_the_full_decode_resized(quarter_log):
+    views = source_views(read_log(quarter_log), 0.5)
     assert {v.source_size for v in views} == {(512, 388), (388, 512)}  # ring cameras; the portrait front
     for v in views[:: max(1, len(views) // 6)]:
         assert jpeg_reduction(v.path, v.source_size, v.cam.width, v.cam.height) == 2
         fast = v.image_u8()
         full = load_image_u8(v.path, v.cam.width, v.cam.height)  # whole file decoded, area-resized
         assert fast.shape == full.shape == (v.cam.height, v.cam.width, 3) and fast.dtype == np.uint8
-        mse = float(np.mean((fast.astype(np.float64) - full) ** 2))
-        assert 10 * np.log10(255**2 / max(mse, 1e-12)) > 40.0
+        assert psnr(fast, full) > 40.0
         assert abs(float(fast.mean()) - float(full.mean())) < 0.5  # no brightness or colour shift
+
+
+def test_warp_exposure_reads_its_small_images_the_same_exact_way(quarter_log):
+    from nuav2.warp.harmonise import read_reduced
+
+    scene = read_log(quarter_log)
+    cam = scene.rig.camera("ring_front_left")
+    frame = scene.camera_frames["ring_front_left"][0]
+    img, small = read_reduced(Path(frame.path), cam, width_px=128)
+    assert (small.width, small.height) == (128, 97) and img.shape == (97, 128, 3)
+    assert jpeg_reduction(frame.path, (cam.width, cam.height), small.width, small.height) == 4
+    assert psnr(img, load_image_u8(Path(frame.path), small.width, small.height)) > 35.0

@@ -1,5 +1,5 @@
 """Source-image decoding at training size: the whole JPEG then an area resize, against a reduced JPEG
-decode (`nuav2.splat.views.jpeg_reduction`), interleaved image by image, on full-resolution AV2-sized
+decode (`nuav2.image_decode.jpeg_reduction`), interleaved image by image, on full-resolution AV2-sized
 images (a short synthetic log at --scale 1: 2048x1550 ring cameras). Prints one JSON line: ms per
 image (wall and CPU, one OpenCV thread) for each, and the PSNR between their results.
 
@@ -20,7 +20,8 @@ import cv2
 import numpy as np
 
 from converters.av2 import read_log
-from nuav2.splat.views import jpeg_reduction, load_image_u8, source_views
+from nuav2.image_decode import jpeg_reduction, load_image_u8
+from nuav2.splat.views import source_views
 
 
 def main() -> None:

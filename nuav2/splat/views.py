@@ -6,12 +6,12 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import cv2
 import numpy as np
 from numba import njit
 
 from nuav2.exposure import ExposureModel
 from nuav2.geometry import F64
+from nuav2.image_decode import load_image_u8
 from nuav2.rig import CameraSpec
 from nuav2.scene import SceneLog
 
@@ -54,34 +54,6 @@ class SourceView:
         """(H, W, 3) float32 RGB in [0, 1] at the training resolution."""
         img = self.image_u8()
         return img.astype(np.float32) / 255.0 if img.dtype == np.uint8 else img.astype(np.float32)
-
-
-_REDUCED_JPEG = {2: cv2.IMREAD_REDUCED_COLOR_2, 4: cv2.IMREAD_REDUCED_COLOR_4, 8: cv2.IMREAD_REDUCED_COLOR_8}
-
-
-def jpeg_reduction(path: Path, source_size: tuple[int, int] | None, width: int, height: int) -> int:
-    """The largest factor (1, 2, 4 or 8) a JPEG can be decoded smaller by, exactly: it divides both sides
-    of ``source_size`` (so the pixel grid keeps its scale, and the intrinsics stay exact) and leaves at
-    least ``width`` x ``height``. A 2048x1550 AV2 image trained at 256 px decodes at half size, twice
-    as fast; other formats and unknown sizes decode in full."""
-    if source_size is None or Path(path).suffix.lower() not in (".jpg", ".jpeg"):
-        return 1
-    w0, h0 = source_size
-    return max([1] + [f for f in _REDUCED_JPEG if w0 % f == 0 and h0 % f == 0
-                      and w0 // f >= width and h0 // f >= height])
-
-
-def load_image_u8(path: Path, width: int, height: int,
-                  source_size: tuple[int, int] | None = None) -> np.ndarray:
-    """Read an image file as uint8 RGB, area-resized to width x height (decoded at a reduced size first
-    where :func:`jpeg_reduction` allows, given the file's ``source_size``)."""
-    f = jpeg_reduction(path, source_size, width, height)
-    bgr = cv2.imread(str(path), _REDUCED_JPEG[f] if f > 1 else cv2.IMREAD_COLOR)
-    if bgr is None:
-        raise ValueError(f"{path}: camera image missing or unreadable")
-    if bgr.shape[:2] != (height, width):
-        bgr = cv2.resize(bgr, (width, height), interpolation=cv2.INTER_AREA)
-    return np.ascontiguousarray(bgr[:, :, ::-1])
 
 
 def load_image(path: Path, width: int, height: int) -> np.ndarray:

@@ -15,7 +15,6 @@ from __future__ import annotations
 from collections.abc import Callable
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from nuav2.cells import unique_cells
@@ -30,6 +29,7 @@ from nuav2.exposure import (
     solve_exposure,
 )
 from nuav2.geometry import F64, T_inverse, translation_T
+from nuav2.image_decode import load_image_u8
 from nuav2.nuscenes_db.images import ImageSourceError
 from nuav2.rig import CameraSpec
 from nuav2.scene import CameraFrame, SceneLog
@@ -45,21 +45,14 @@ SWEEP_STRIDE = 5
 
 def read_reduced(path: Path, camera: CameraSpec,
                  width_px: int = WORK_WIDTH_PX) -> tuple[np.ndarray, CameraSpec]:
-    """uint8 RGB image at about ``width_px`` wide (decoded reduced when large) and its camera."""
+    """uint8 RGB image at about ``width_px`` wide (decoded reduced where that is exact) and its camera."""
     scale = min(1.0, width_px / camera.width)
     small = camera.scaled(scale) if scale < 1.0 else camera
-    flag = cv2.IMREAD_COLOR
-    for f, reduced in ((8, cv2.IMREAD_REDUCED_COLOR_8), (4, cv2.IMREAD_REDUCED_COLOR_4),
-                       (2, cv2.IMREAD_REDUCED_COLOR_2)):
-        if camera.width / f >= small.width:
-            flag = reduced
-            break
-    img = cv2.imread(str(path), flag)
-    if img is None:
-        raise ImageSourceError(f"{path}: not a readable image")
-    if img.shape[:2] != (small.height, small.width):
-        img = cv2.resize(img, (small.width, small.height), interpolation=cv2.INTER_AREA)
-    return np.ascontiguousarray(img[:, :, ::-1]), small
+    try:
+        img = load_image_u8(path, small.width, small.height, (camera.width, camera.height))
+    except ValueError:
+        raise ImageSourceError(f"{path}: not a readable image") from None
+    return img, small
 
 
 def static_points(scene: SceneLog, sweep_points: Callable[[int], F64]) -> F64:
