@@ -58,3 +58,32 @@ def test_warp_exposure_reads_its_small_images_the_same_exact_way(quarter_log):
     assert (small.width, small.height) == (128, 97) and img.shape == (97, 128, 3)
     assert jpeg_reduction(frame.path, (cam.width, cam.height), small.width, small.height) == 4
     assert psnr(img, load_image_u8(Path(frame.path), small.width, small.height)) > 35.0
+
+
+def test_an_image_read_for_the_exposure_solve_is_corrected_without_a_second_decode(quarter_log, monkeypatch):
+    import nuav2.splat.views as views_module
+    from nuav2.exposure import ExposureModel
+
+    decodes: list[Path] = []
+    real = views_module.load_image_u8
+
+    def counted(path, *args):
+        decodes.append(Path(path))
+        return real(path, *args)
+
+    monkeypatch.setattr(views_module, "load_image_u8", counted)
+    views = source_views(read_log(quarter_log), 0.5)[:4]
+    raw = [v.raw_image_u8().copy() for v in views]  # what the exposure solve reads, before a model exists
+    n = len(views)
+    gains = np.tile([[0.3, -0.2, 0.1]], (n, 1))
+    model = ExposureModel(gains, np.array([[-0.2, 0.05]]), np.zeros(n, np.int64))
+    for v in views:
+        v.set_exposure(model)
+    for v, r in zip(views, raw, strict=True):
+        assert np.array_equal(v.raw_image_u8(), r)  # still the camera's pixels
+        corrected = v.image_u8()
+        assert np.array_equal(corrected, model.correct(r, v.index, v.cam.K))
+        assert not np.array_equal(corrected, r)
+    assert len(decodes) == n  # each file read once
+    v = views[0]
+    assert np.array_equal(v.raw_image_u8(), raw[0]) and len(decodes) == n + 1  # later raw reads decode again

@@ -30,25 +30,33 @@ class SourceView:
     exposure: ExposureModel | None = field(default=None, repr=False)  # corrects image ``index`` when set
     source_size: tuple[int, int] | None = None  # (width, height) of the file, from the rig: decode smaller
     _image: np.ndarray | None = field(default=None, repr=False)
+    _raw: np.ndarray | None = field(default=None, repr=False)  # uncorrected pixels kept for image_u8
 
     def image_u8(self) -> np.ndarray:
         """(H, W, 3) uint8 RGB at the training resolution (kept in memory: 4x smaller than float), at the
         log's reference exposure once :meth:`set_exposure` has been called."""
         if self._image is None:
-            img = load_image_u8(self.path, self.cam.width, self.cam.height, self.source_size)
+            img = self._raw if self._raw is not None else self._decode()
+            self._raw = None
             self._image = img if self.exposure is None else self.exposure.correct(img, self.index, self.cam.K)
         return self._image
 
     def raw_image_u8(self) -> np.ndarray:
-        """The image as the camera took it (no exposure correction; not cached)."""
+        """The image as the camera took it (no exposure correction; cached only until it is corrected)."""
         if self.exposure is None:
             return self.image_u8()
-        return load_image_u8(self.path, self.cam.width, self.cam.height, self.source_size)
+        return self._raw if self._raw is not None else self._decode()
 
     def set_exposure(self, model: ExposureModel | None) -> None:
-        """Correct this image (``index``) with ``model`` from now on."""
+        """Correct this image (``index``) with ``model`` from now on. Pixels read uncorrected (the
+        exposure solve reads every image) are kept and corrected, not decoded a second time."""
+        if self.exposure is None and self._image is not None:
+            self._raw = self._image
         self.exposure = model
         self._image = None
+
+    def _decode(self) -> np.ndarray:
+        return load_image_u8(self.path, self.cam.width, self.cam.height, self.source_size)
 
     def image(self) -> np.ndarray:
         """(H, W, 3) float32 RGB in [0, 1] at the training resolution."""
