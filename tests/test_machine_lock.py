@@ -6,8 +6,7 @@ import multiprocessing as mp
 import time
 from pathlib import Path
 
-from nuav2.machine_lock import machine_lock
-from nuav2.splat.gsplat_backend import gsplat_build_lock_path
+from nuav2.machine_lock import machine_lock  # the spawned children import only this (no torch)
 
 
 def _hold(path: str, out: str) -> None:
@@ -41,6 +40,8 @@ def test_a_lock_that_cannot_be_made_runs_the_step_unlocked(tmp_path):
 
 
 def test_the_build_lock_sits_in_torchs_extension_folder(monkeypatch, tmp_path):
+    from nuav2.splat.gsplat_backend import gsplat_build_lock_path
+
     monkeypatch.setenv("TORCH_EXTENSIONS_DIR", str(tmp_path))
     assert gsplat_build_lock_path() == tmp_path / "nuav2-gsplat-build.lock"
     monkeypatch.delenv("TORCH_EXTENSIONS_DIR")
