@@ -1,8 +1,8 @@
 """One reconstruction of a saved synthetic log (`--preset fast` or `default`), scored in the nuScenes rig.
 
 Prints one JSON line: iterations run and why they stopped, Gaussians, seeding and total wall and CPU
-seconds (CPU of all threads, from getrusage), and target-rig PSNR per region over 12 sample times
-against the world's exact render. Run it once per checkout (``git worktree add DIR COMMIT``) on the same
+seconds (CPU of all threads, from getrusage), source-image files decoded, and target-rig PSNR per
+region over 12 sample times against the world's exact render. Run it once per checkout (``git worktree add DIR COMMIT``) on the same
 log, one after another on a quiet machine, to compare checkouts; a fresh checkout's first run also
 compiles its kernels, so run it twice there and keep the second:
 
@@ -30,6 +30,21 @@ from nuav2.splat.views import source_views
 from nuav2.synth import load_world
 
 
+def count_source_decodes() -> list[int]:
+    """Count the source-image files the reconstruction decodes (one-element list, updated in place)."""
+    import nuav2.splat.views as views_module
+
+    count = [0]
+    load = views_module.load_image_u8
+
+    def counted(*args, **kwargs):
+        count[0] += 1
+        return load(*args, **kwargs)
+
+    views_module.load_image_u8 = counted
+    return count
+
+
 def cpu_s() -> float:
     ru = resource.getrusage(resource.RUSAGE_SELF)
     return ru.ru_utime + ru.ru_stime
@@ -51,6 +66,7 @@ def main() -> None:
         n_train = len(views) // cfg.frame_stride
         cap = cfg.train.for_views(n_train).iterations
         cfg = replace(cfg, train=replace(cfg.train, pyramid_until=(args.half_res_iterations / cap,)))
+    decodes = count_source_decodes()
     wall0, cpu0 = time.perf_counter(), cpu_s()
     splat = reconstruct(scene, cfg, progress=False)
     wall, cpu = time.perf_counter() - wall0, cpu_s() - cpu0
@@ -64,6 +80,7 @@ def main() -> None:
         "stop_reason": train["stop_reason"], "densify_stopped_at": train["densify_stopped_at"],
         "last_heldout_psnr_db": train["validation"][-1][1] if train["validation"] else None,
         "gaussians": splat.num_gaussians(), "seeding_s": round(splat.info["init_seconds"], 1),
+        "source_decodes": decodes[0],
         "recon_wall_s": round(wall, 1), "recon_cpu_s": round(cpu, 1), "load_1min": os.getloadavg()[0],
         "psnr_db": round(target["psnr_db"], 3), "ssim": round(target["ssim"], 4),
         **{f"psnr_{k}_db": round(v, 3) for k, v in regions.items() if v is not None}}))
