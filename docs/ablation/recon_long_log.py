@@ -2,9 +2,10 @@
 
 Prints one JSON line: iterations run and why they stopped, Gaussians, seeding and total wall and CPU
 seconds (CPU of all threads, from getrusage), source-image files decoded, and target-rig PSNR per
-region over 12 sample times against the world's exact render. Run it once per checkout (``git worktree add DIR COMMIT``) on the same
-log, one after another on a quiet machine, to compare checkouts; a fresh checkout's first run also
-compiles its kernels, so run it twice there and keep the second:
+region over 12 sample times against the world's exact render. Run it once per checkout
+(``git worktree add DIR COMMIT``) on the same log, one after another on a quiet machine, to compare
+checkouts; a fresh checkout's first run also compiles its kernels, so run it twice there and keep the
+second:
 
     nuav2 synth --seed 0 --preset easy --seconds 15 LOGS
     PYTHONPATH=DIR python docs/ablation/recon_long_log.py LOGS/train/<log_id>
