@@ -50,9 +50,9 @@ class ViewData:
         return cam, img.float() / 255.0, valid, sky, uvz
 
 
-def nearest_sweep(scene: SceneLog, timestamp_ns: int) -> int:
-    """Index of the LiDAR sweep nearest a camera timestamp (the earlier one on a tie)."""
-    return int(np.argmin(np.abs(scene.sweep_timestamps_ns - timestamp_ns)))
+def nearest_sweep(sweep_ns: np.ndarray, timestamp_ns: int) -> int:
+    """Index of the LiDAR sweep (times ``sweep_ns``) nearest a camera timestamp (the earlier on a tie)."""
+    return int(np.argmin(np.abs(sweep_ns - timestamp_ns)))
 
 
 def lidar_depth_samples(scene: SceneLog, view: SourceView, scene_T_city: F64, max_points: int = 20_000,
@@ -64,7 +64,8 @@ def lidar_depth_samples(scene: SceneLog, view: SourceView, scene_T_city: F64, ma
     if not scene.lidar_sweeps:
         return np.zeros((0, 3), np.float32)
     if scene_pts is None:
-        scene_pts = sweep_in_scene(scene, nearest_sweep(scene, view.timestamp_ns), scene_T_city)
+        scene_pts = sweep_in_scene(scene, nearest_sweep(scene.sweep_timestamps_ns, view.timestamp_ns),
+                                   scene_T_city)
     cam_T_scene = T_inverse(scene_T_city @ view.city_T_cam)
     proj = project(scene_pts, view.cam, cam_T_scene, near=0.5)
     ok = proj.z < max_depth_m
@@ -89,11 +90,10 @@ def lidar_depth_by_view(scene: SceneLog, views: list[SourceView], scene_T_city: 
     ``threads`` threads."""
     if not scene.lidar_sweeps:
         return [np.zeros((0, 3), np.float32) for _ in views]
-    ts = scene.sweep_timestamps_ns
-    nearest = np.abs(ts[None, :] - np.array([v.timestamp_ns for v in views], np.int64)[:, None]).argmin(1)
+    sweep_ns = scene.sweep_timestamps_ns
     groups: dict[int, list[int]] = {}
-    for i, k in enumerate(nearest.tolist()):
-        groups.setdefault(k, []).append(i)
+    for i, v in enumerate(views):
+        groups.setdefault(nearest_sweep(sweep_ns, v.timestamp_ns), []).append(i)
 
     def one_sweep(item: tuple[int, list[int]]) -> list[tuple[int, np.ndarray]]:
         pts = sweep_in_scene(scene, item[0], scene_T_city)
