@@ -12,6 +12,7 @@ import contextlib
 import hashlib
 import json
 import logging
+import os
 import tempfile
 import traceback
 from collections.abc import Callable
@@ -217,6 +218,19 @@ def earlier_shards(out: Path, version: str, fingerprint: str, this_run: set[str]
     return earlier
 
 
+def log_threads(options: ConvertOptions) -> int:
+    """Threads one warp-mode log uses: 2 where its worker has two cores to itself (one local worker on
+    this machine, or Ray tasks of 2+ CPUs), else 1; the images are the same either way."""
+    if options.executor == "ray":
+        from nuav2.executors.ray_tasks import DEFAULT_CPUS
+
+        cpus = options.cpus_per_task if options.cpus_per_task is not None else DEFAULT_CPUS[options.mode]
+    else:
+        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+        cpus = cores / options.workers
+    return 2 if cpus >= 2 else 1
+
+
 def convert_one_log(log_dir: Path, dataroot: Path, options: ConvertOptions,
                     after_write: Callable[[str], None] | None = None) -> dict:
     """Read, write and save the shard of one log; returns ``{"log_id", "log_dir", "error", "images"}``
@@ -234,7 +248,8 @@ def convert_one_log(log_dir: Path, dataroot: Path, options: ConvertOptions,
                                            rig=options.rig, scale=options.scale,
                                            recon_preset=options.recon_preset,
                                            min_confidence=options.min_confidence, device=options.device,
-                                           progress=options.show_progress and options.workers == 1)
+                                           progress=options.show_progress and options.workers == 1,
+                                           threads=log_threads(options))
         shard = write_log(scene, out_rig, images, Path(dataroot),
                           WriterOptions(keyframe_hz=options.keyframe_hz,
                                         show_progress=options.show_progress and options.workers == 1))

@@ -13,6 +13,7 @@ recorded per image file so users can drop weak frames (``nuav2_image_quality.jso
 
 from __future__ import annotations
 
+import contextlib
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -61,6 +62,13 @@ class QualityRecordingImages:
         return self.inner.fingerprint()
 
     @property
+    def threads(self) -> int:
+        return int(getattr(self.inner, "threads", 1))
+
+    def storing(self) -> contextlib.AbstractContextManager:
+        return getattr(self.inner, "storing", contextlib.nullcontext)()
+
+    @property
     def device(self) -> str | None:
         """The torch device the inner source rendered on (render mode), else None."""
         return getattr(self.inner, "device", None)
@@ -69,16 +77,18 @@ class QualityRecordingImages:
 def image_source_for(scene: SceneLog, mode: str, dataroot: Path, *, image_link: str = "copy",
                      rig: str = "nuscenes", scale: float = 1.0,
                      recon_preset: str = "default", min_confidence: float = 0.0,
-                     progress: bool = False, device: str = "auto") -> tuple[Rig, ImageSource]:
+                     progress: bool = False, device: str = "auto",
+                     threads: int = 1) -> tuple[Rig, ImageSource]:
     """Output rig and image source of one log for ``mode`` (``progress``: report reconstruction progress;
-    ``device``: where render mode reconstructs and renders, :mod:`nuav2.splat.device`)."""
+    ``device``: where render mode reconstructs and renders, :mod:`nuav2.splat.device`; ``threads``: warp
+    mode's threads)."""
     if mode == "native":
         return output_rig_native(scene), NativeImages(image_link)
     out_rig = output_rig_target(rig, scale)
     if mode == "warp":
         from nuav2.warp.provider import warp_image_source
 
-        return out_rig, QualityRecordingImages(warp_image_source(scene), Path(dataroot))
+        return out_rig, QualityRecordingImages(warp_image_source(scene, threads=threads), Path(dataroot))
     if mode == "render":
         from nuav2.recon import render_image_source
 

@@ -152,7 +152,35 @@ def test_image_source_records_coverage_and_fingerprints_its_config(synth, tmp_pa
     assert warp_image_source(scene, WarpConfig(fill="color")).fingerprint() != images.fingerprint()
 
 
-def test_missing_source_image_names_the_file(synth, rig):
+@pytest.mark.parametrize("cache_mb", [1024, 0])  # 0: every view leaves the cache at once (rebuilt on demand)
+def test_two_render_threads_write_the_same_files_as_one(synth, tmp_path: Path, cache_mb: int):
+    scene, _ = synth
+    out_rig = load_rig("nuscenes", scale=0.05)
+    written = {}
+    for threads in (1, 2):
+        images = warp_image_source(scene, WarpConfig(cache_mb=cache_mb), threads=threads)
+        assert images.threads == threads
+        root = tmp_path / f"t{threads}"
+        write_log(scene, out_rig, images, root, WriterOptions(keyframe_hz=5.0, show_progress=False))
+        written[threads] = {p.relative_to(root).as_posix(): p.read_bytes()
+                            for p in sorted(root.rglob("*.jpg"))}
+        assert images.render.coverage and not images.render._making  # nothing left half-built
+    assert len(written[1]) == 5 * 6 and written[2] == written[1]
+
+
+def test_log_threads_give_a_log_two_threads_only_where_its_worker_has_two_cores():
+    import os
+
+    from nuav2.convert import ConvertOptions, log_threads
+
+    cores = len(os.sched_getaffinity(0))
+    assert log_threads(ConvertOptions(mode="warp")) == (2 if cores >= 2 else 1)
+    assert log_threads(ConvertOptions(mode="warp", workers=max(cores, 1))) == 1
+    assert log_threads(ConvertOptions(mode="warp", executor="ray")) == 1  # a 1-CPU task by default
+    assert log_threads(ConvertOptions(mode="warp", executor="ray", cpus_per_task=2)) == 2
+
+
+def test_missing_source_image_names_the_file(synth, rig, tmp_path: Path):
     scene, _ = synth
     ch = "ring_front_center"
     frames = list(scene.camera_frames[ch])
@@ -163,6 +191,10 @@ def test_missing_source_image_names_the_file(synth, rig):
     city_T_cam = scene.city_T_ego_at(t) @ egoS_T_egoT_from_heights(0.32, 0.0) @ cam.ego_T_cam
     with pytest.raises(ImageSourceError, match="missing.jpg"):
         WarpRenderer(broken)("CAM_FRONT", cam, city_T_cam, t)
+    # With two render threads the writer stops on the same one-line error, whichever thread read the file.
+    with pytest.raises(ImageSourceError, match="missing.jpg"):
+        write_log(broken, load_rig("nuscenes", scale=0.05), warp_image_source(broken, threads=2),
+                  tmp_path, WriterOptions(keyframe_hz=5.0, show_progress=False))
     with pytest.raises(ImageSourceError, match="needs the source camera images"):
         WarpRenderer(dataclasses.replace(scene, camera_frames={}))
 

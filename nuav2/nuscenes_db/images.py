@@ -13,6 +13,7 @@ works out every image's pose and sample, and then asks the source to store each 
 
 from __future__ import annotations
 
+import contextlib
 import os
 import shutil
 from collections.abc import Callable
@@ -198,3 +199,12 @@ class RenderedImages:
 
     def fingerprint(self) -> str:
         return f"render:{self.name}:sweeps={self.at_sweeps}:q={self.jpeg_quality}"
+
+    @property
+    def threads(self) -> int:
+        """Images the writer may store at once: the renderer's ``threads`` (1 when it has none)."""
+        return int(getattr(self.render, "threads", 1))
+
+    def storing(self) -> contextlib.AbstractContextManager:
+        """The renderer's context around the writer's whole image loop, if it has one."""
+        return getattr(self.render, "storing", contextlib.nullcontext)()

@@ -17,6 +17,7 @@ collide; each file is written atomically); the records are returned and saved as
 
 from __future__ import annotations
 
+import contextlib
 import logging
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -27,7 +28,13 @@ from nuav2.geometry import F64, egoS_T_egoT_from_heights
 from nuav2.nuscenes_db import annotations as ann_mod
 from nuav2.nuscenes_db import records as rec
 from nuav2.nuscenes_db.images import CameraShot, ImageSource
-from nuav2.nuscenes_db.keyframes import KEY_IMAGE_TOLERANCE_NS, Timeline, build_timeline, plan_samples
+from nuav2.nuscenes_db.keyframes import (
+    KEY_IMAGE_TOLERANCE_NS,
+    Timeline,
+    TimelineFrame,
+    build_timeline,
+    plan_samples,
+)
 from nuav2.nuscenes_db.lidar_top import lidar_T_egoS, sweep_to_pcd_rows, write_pcd_bin
 from nuav2.nuscenes_db.map_frame import OFFSET_KEY, MapFrame, map_frame_for
 from nuav2.nuscenes_db.tables import PER_LOG_TABLES
@@ -35,6 +42,7 @@ from nuav2.nuscenes_db.tokens import make_token
 from nuav2.progress import progress_bar
 from nuav2.rig import Rig
 from nuav2.scene import SceneLog, VectorMap
+from nuav2.threads import ordered_thread_map
 
 log = logging.getLogger(__name__)
 
@@ -245,13 +253,22 @@ def _write_cameras(scene: SceneLog, timeline: Timeline, out_rig: Rig, images: Im
     # Time-major order: a renderer that caches source views reuses them across target cameras.
     cam_frames = sorted((f for ch in shots for f in timeline.frames[ch]),
                         key=lambda f: (f.timestamp_us, f.channel))
-    for f in progress_bar(cam_frames, desc=f"{scene.log_id[:8]} cameras", unit="img", leave=False,
-                          disable=not options.show_progress or not cam_frames):
+
+    def store(f: TimelineFrame) -> str:
         shot = shots[f.channel][f.index]
         cam = out_rig.camera(f.channel)
         rel = data_filename(scene.log_id, f.channel, f.timestamp_us, f.is_key_frame, images.extension(shot))
         images.store(shot, cam, city_T_egoT_of[(f.channel, f.index)] @ cam.ego_T_cam, files.path(rel))
-        filenames[(f.channel, f.index)] = rel
+        return rel
+
+    # A source that can store several images at once says so (warp mode: ``threads``); same files either way.
+    # ``storing()``: a context the source holds around the whole loop (warp mode: BLAS on one thread).
+    with getattr(images, "storing", contextlib.nullcontext)():
+        stored = ordered_thread_map(store, cam_frames, int(getattr(images, "threads", 1)))
+        bar = progress_bar(stored, total=len(cam_frames), desc=f"{scene.log_id[:8]} cameras", unit="img",
+                           leave=False, disable=not options.show_progress or not cam_frames)
+        for f, rel in zip(cam_frames, bar):
+            filenames[(f.channel, f.index)] = rel
     return filenames
 
 

@@ -1,7 +1,8 @@
 """Numba kernels of the warp: ground ray casting, lidar disk splatting, per-source backward warp.
 
 One loop over rays / points / pixels each, float64 geometry, no temporaries: the numpy
-versions of these spent most of their time allocating (N, 3) arrays. The public wrappers in
+versions of these spent most of their time allocating (N, 3) arrays. They release the GIL, so the warp
+builds a target's depth proxy while a second thread builds its new source views. The public wrappers in
 ``depth_proxy`` and ``backward_warp`` check inputs and document the semantics.
 """
 
@@ -103,7 +104,7 @@ def _ground_ray(ox, oy, oz, dx, dy, dz, normal, offset, heights, rR, rt, rs, has
     return math.inf
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def ground_intersect_kernel(origin, dirs, normal, offset, heights, rR, rt, rs, has_raster, iterations, t_max,
                             tol, out):  # pragma: no cover - compiled
     for i in range(dirs.shape[0]):
@@ -111,7 +112,7 @@ def ground_intersect_kernel(origin, dirs, normal, offset, heights, rR, rt, rs, h
                              offset, heights, rR, rt, rs, has_raster, iterations, t_max, tol)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def splat_points_kernel(points, radius_m, cam_T_city, K, near, far, min_px, max_px,
                         depth):  # pragma: no cover - compiled
     """Project city points and z-buffer them as disks of ``f * radius / z`` pixels (clipped)."""
@@ -165,7 +166,7 @@ def _bilinear3(img, u, v, c):
     return a * (1 - ay) + b * ay
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def warp_source_kernel(depth_T, K_T, city_T_camT, box_index, motion, image, image_scale, K_S, cam_T_city_S,
                        centre_S, inv_depth, K_vis, valid, has_valid, time_w, near, rel_tol, inf_inv,
                        angle_sigma, border_px, min_w, acc, wsum, count):  # pragma: no cover - compiled
@@ -274,14 +275,14 @@ def _slab_t(ox, oy, oz, dx, dy, dz, hx, hy, hz, near):
     return math.inf
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def ray_box_kernel(origin, dirs, half, near, out):  # pragma: no cover - compiled
     for i in range(dirs.shape[0]):
         out[i] = _slab_t(origin[0], origin[1], origin[2], dirs[i, 0], dirs[i, 1], dirs[i, 2],
                          half[0], half[1], half[2], near)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def box_depth_kernel(K, box_T_cam, half, rects, near, max_depth, depth, index):  # pragma: no cover - compiled
     """Nearest box face per pixel inside each box's rectangle (r0, r1, c0, c1 inclusive; r1 < r0: skip)."""
     fx, skew, cx, fy, cy = K[0, 0], K[0, 1], K[0, 2], K[1, 1], K[1, 2]
@@ -301,7 +302,7 @@ def box_depth_kernel(K, box_T_cam, half, rects, near, max_depth, depth, index): 
                     index[row, col] = b
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def ground_depth_kernel(K, city_T_cam, normal, offset, heights, rR, rt, rs, has_raster, iterations, t_max,
                         tol, near, max_depth, depth):  # pragma: no cover - compiled
     """Camera z of the ground for every pixel (rays generated here; ``inf`` outside [near, max_depth]).
@@ -370,7 +371,7 @@ def ground_depth_kernel(K, city_T_cam, normal, offset, heights, rR, rt, rs, has_
             depth[row, col] = t if (t >= near and t <= max_depth) else math.inf
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def inside_boxes_kernel(points, box_T_frame, lo, hi, out):  # pragma: no cover - compiled
     """``out[b, i]``: point i (frame coordinates) lies in box b's frame within ``lo[b] <= p <= hi[b]``."""
     for b in range(box_T_frame.shape[0]):
@@ -387,7 +388,7 @@ def inside_boxes_kernel(points, box_T_frame, lo, hi, out):  # pragma: no cover -
             out[b, i] = pz >= lo[b, 2] and pz <= hi[b, 2]
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def ground_heights_kernel(xy, normal, offset, heights, rR, rt, rs, has_raster, out):  # pragma: no cover
     """Ground z at each city (x, y): the raster's bilinear height where it has one, else the plane's."""
     for i in range(xy.shape[0]):

@@ -10,10 +10,14 @@ and their share is recorded per image in :attr:`WarpRenderer.coverage`.
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import hashlib
 import json
+import threading
 from collections import OrderedDict
+from collections.abc import Iterator
+from concurrent.futures import Future
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -41,10 +45,27 @@ def _threadpools() -> ThreadpoolController:
     return ThreadpoolController()  # scans the loaded libraries once
 
 
-def one_blas_thread():
+_blas_lock = threading.Lock()
+_blas: dict = {"users": 0, "limiter": None}  # the limit holds while any render thread is inside
+
+
+@contextlib.contextmanager
+def one_blas_thread() -> Iterator[None]:
     """Context: BLAS on one thread. The warp's matrix products are small (points x 3x3); OpenBLAS's
-    second thread gained no wall time on a 15 s log and spun for 25 CPU s, taken from the other worker."""
-    return _threadpools().limit(limits=1, user_api="blas")
+    second thread gained no wall time on a 15 s log and spun for 25 CPU s, taken from the other worker.
+    Counted, so a render thread that leaves never lifts the limit under another that is still inside."""
+    with _blas_lock:
+        if _blas["users"] == 0:
+            _blas["limiter"] = _threadpools().limit(limits=1, user_api="blas")
+        _blas["users"] += 1
+    try:
+        yield
+    finally:
+        with _blas_lock:
+            _blas["users"] -= 1
+            if _blas["users"] == 0:
+                _blas["limiter"].restore_original_limits()
+                _blas["limiter"] = None
 
 
 @dataclass(frozen=True)
@@ -115,9 +136,14 @@ def read_rgb(path: Path, camera: CameraSpec) -> np.ndarray:
 class WarpRenderer:
     """Renders any target camera at any time of ``scene`` by warping its source images (see module doc)."""
 
-    def __init__(self, scene: SceneLog, config: WarpConfig | None = None) -> None:
+    def __init__(self, scene: SceneLog, config: WarpConfig | None = None, threads: int = 1) -> None:
         self.scene = scene
         self.config = config or WarpConfig()
+        # Target images rendered at once by the writer (nuav2.nuscenes_db.writer); the caches below are shared
+        # under ``_lock``, the heavy work (depth proxies, decoding, blending) runs outside it.
+        self.threads = max(1, int(threads))
+        self._lock = threading.RLock()
+        self._making: dict[tuple[str, int], Future] = {}  # source views being built by another thread
         self._poses: dict[int, F64] = {}
         self._boxes: OrderedDict[int, BoxesAt] = OrderedDict()
         self.tracks = BoxTracks.from_scene(scene, smooth=self.config.smooth_tracks)
@@ -156,6 +182,10 @@ class WarpRenderer:
     # -- geometry -------------------------------------------------------------------------------
     def city_T_ego_at(self, timestamp_ns: int) -> F64:
         t = int(timestamp_ns)
+        with self._lock:
+            return self._city_T_ego_at(t)
+
+    def _city_T_ego_at(self, t: int) -> F64:
         if t not in self._poses:
             if len(self._poses) > 4096:
                 self._poses.clear()
@@ -163,7 +193,10 @@ class WarpRenderer:
         return self._poses[t]
 
     def boxes_at(self, timestamp_ns: int) -> BoxesAt:
-        t = int(timestamp_ns)
+        with self._lock:
+            return self._boxes_at(int(timestamp_ns))
+
+    def _boxes_at(self, t: int) -> BoxesAt:
         if t in self._boxes:
             return self._boxes[t]
         self._boxes[t] = self.tracks.at(t, DEFAULT_TOLERANCE_NS)
@@ -179,6 +212,10 @@ class WarpRenderer:
 
     def geometry_at(self, timestamp_ns: int) -> tuple[ProxyGeometry, BoxesAt]:
         """Ground, static lidar points and boxes at ``timestamp_ns`` (the boxes also with their tracks)."""
+        with self._lock:
+            return self._geometry_at(timestamp_ns)
+
+    def _geometry_at(self, timestamp_ns: int) -> tuple[ProxyGeometry, BoxesAt]:
         pts, radius = self.cloud.around(timestamp_ns)
         boxes = self.boxes_at(timestamp_ns)
         city_T_layer, size, actor_pts = boxes.city_T_box, boxes.size_lwh, None
@@ -197,6 +234,10 @@ class WarpRenderer:
         (:mod:`nuav2.warp.harmonise`); None when harmonising is off."""
         if self.config.harmonise is None:
             return None
+        with self._lock:
+            return self._solve_exposure()
+
+    def _solve_exposure(self) -> tuple[ExposureModel, dict[tuple[str, int], int]]:
         if self._exposure is None:
             points = static_points(self.scene, lambda i: self.cloud.sweep_points(i)[0])
             self._exposure = solve_source_exposure(self.scene, self.frames, points, self.config.harmonise,
@@ -204,17 +245,42 @@ class WarpRenderer:
         return self._exposure
 
     def _ego_valid(self, camera: CameraSpec) -> np.ndarray | None:
-        if camera.channel not in self._valid:
-            self._valid[camera.channel] = ~camera.ego_mask() if camera.ego_mask_polygons else None
-        return self._valid[camera.channel]
+        with self._lock:
+            if camera.channel not in self._valid:
+                self._valid[camera.channel] = ~camera.ego_mask() if camera.ego_mask_polygons else None
+            return self._valid[camera.channel]
+
+    def _view_key(self, channel: str, index: int) -> tuple[str, int]:
+        return channel, int(self.frames[channel][index].timestamp_ns)
 
     def source_view(self, channel: str, index: int) -> SourceView:
         """Source image ``index`` of ``channel`` with its own depth proxy (cached)."""
+        key = self._view_key(channel, index)
+        with self._lock:
+            if key in self._views:
+                self._views.move_to_end(key)
+                return self._views[key]
+            making = self._making.get(key)
+            if making is None:
+                self._making[key] = mine = Future()
+        if making is not None:  # another render thread is building it
+            return making.result()
+        try:
+            view = self._make_view(channel, index)
+        except BaseException as e:
+            with self._lock:
+                del self._making[key]
+            mine.set_exception(e)
+            raise
+        with self._lock:
+            self._keep_view(key, view)
+            del self._making[key]
+        mine.set_result(view)
+        return view
+
+    def _make_view(self, channel: str, index: int) -> SourceView:
+        """A source view, built from scratch (only the shared caches it reads are locked)."""
         frame = self.frames[channel][index]
-        key = (channel, int(frame.timestamp_ns))
-        if key in self._views:
-            self._views.move_to_end(key)
-            return self._views[key]
         cam = self.scene.rig.camera(channel)
         t = int(frame.timestamp_ns)
         city_T_cam = self.city_T_ego_at(t) @ cam.ego_T_cam
@@ -226,7 +292,10 @@ class WarpRenderer:
         exposure = self.exposure()
         if exposure is not None:
             image = exposure[0].correct(image, exposure[1][(channel, index)], cam.K)
-        view = SourceView(image, cam, city_T_cam, t, vis_cam, proxy.inverse_depth(), self._ego_valid(cam))
+        return SourceView(image, cam, city_T_cam, t, vis_cam, proxy.inverse_depth(), self._ego_valid(cam))
+
+    def _keep_view(self, key: tuple[str, int], view: SourceView) -> SourceView:
+        """Cache ``view`` (least recently used views leave past ``cache_mb``)."""
         nbytes = view.image.nbytes + view.inv_depth.nbytes
         self._views[key] = view
         self._view_bytes += nbytes
@@ -291,6 +360,11 @@ class WarpRenderer:
             nonrigid[on_box] = nonrigid_track[boxes_T.track[target.box_index[on_box]]]
         return WarpOutput(rgb, cov, len(sources), nonrigid)
 
+    def storing(self) -> contextlib.AbstractContextManager:
+        """Held by the writer around all its images: BLAS stays on one thread from the first image to the
+        last (lifted and set again between images, OpenBLAS's idle threads spun for a quarter more CPU)."""
+        return one_blas_thread()
+
     def __call__(self, channel: str, camera: CameraSpec, city_T_cam: F64, timestamp_ns: int) -> np.ndarray:
         """The writer's RenderFn: uint8 (H, W, 3) RGB. Its recorded confidence is the share of pixels a
         source saw, not counting pixels of non-rigid actors (their limbs move inside the warped box)."""
@@ -309,8 +383,9 @@ class WarpRenderer:
 
 
 def warp_image_source(scene: SceneLog, config: WarpConfig | None = None, *, at_sweeps: bool = False,
-                      jpeg_quality: int = 95) -> RenderedImages:
-    """The writer's ImageSource for warp mode (one image per target camera at each sample time)."""
-    renderer = WarpRenderer(scene, config)
+                      jpeg_quality: int = 95, threads: int = 1) -> RenderedImages:
+    """The writer's ImageSource for warp mode (one image per target camera at each sample time);
+    ``threads`` (1 or 2) changes the time, never an image."""
+    renderer = WarpRenderer(scene, config, threads)
     return RenderedImages(render=renderer, name=f"warp:{renderer.config.fingerprint()}", at_sweeps=at_sweeps,
                           jpeg_quality=jpeg_quality)
