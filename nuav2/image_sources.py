@@ -62,8 +62,8 @@ class QualityRecordingImages:
         return self.inner.fingerprint()
 
     @property
-    def threads(self) -> int:
-        return int(getattr(self.inner, "threads", 1))
+    def images_at_once(self) -> int:
+        return int(getattr(self.inner, "images_at_once", 1))
 
     def storing(self) -> contextlib.AbstractContextManager:
         return getattr(self.inner, "storing", contextlib.nullcontext)()

@@ -159,7 +159,7 @@ def test_two_render_threads_write_the_same_files_as_one(synth, tmp_path: Path, c
     written = {}
     for threads in (1, 2):
         images = warp_image_source(scene, WarpConfig(cache_mb=cache_mb), threads=threads)
-        assert images.threads == threads
+        assert images.images_at_once == threads
         root = tmp_path / f"t{threads}"
         write_log(scene, out_rig, images, root, WriterOptions(keyframe_hz=5.0, show_progress=False))
         written[threads] = {p.relative_to(root).as_posix(): p.read_bytes()

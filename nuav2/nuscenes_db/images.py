@@ -201,9 +201,9 @@ class RenderedImages:
         return f"render:{self.name}:sweeps={self.at_sweeps}:q={self.jpeg_quality}"
 
     @property
-    def threads(self) -> int:
-        """Images the writer may store at once: the renderer's ``threads`` (1 when it has none)."""
-        return int(getattr(self.render, "threads", 1))
+    def images_at_once(self) -> int:
+        """Images the writer may store at once: the renderer's ``images_at_once`` (1 when it has none)."""
+        return int(getattr(self.render, "images_at_once", 1))
 
     def storing(self) -> contextlib.AbstractContextManager:
         """The renderer's context around the writer's whole image loop, if it has one."""

@@ -261,10 +261,11 @@ def _write_cameras(scene: SceneLog, timeline: Timeline, out_rig: Rig, images: Im
         images.store(shot, cam, city_T_egoT_of[(f.channel, f.index)] @ cam.ego_T_cam, files.path(rel))
         return rel
 
-    # A source that can store several images at once says so (warp mode: ``threads``); same files either way.
+    # A source that can store several images at once says so (``images_at_once``, warp mode's threads); the
+    # files are the same either way.
     # ``storing()``: a context the source holds around the whole loop (warp mode: BLAS on one thread).
     with getattr(images, "storing", contextlib.nullcontext)():
-        stored = ordered_thread_map(store, cam_frames, int(getattr(images, "threads", 1)))
+        stored = ordered_thread_map(store, cam_frames, int(getattr(images, "images_at_once", 1)))
         bar = progress_bar(stored, total=len(cam_frames), desc=f"{scene.log_id[:8]} cameras", unit="img",
                            leave=False, disable=not options.show_progress or not cam_frames)
         for f, rel in zip(cam_frames, bar):

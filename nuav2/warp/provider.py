@@ -360,6 +360,11 @@ class WarpRenderer:
             nonrigid[on_box] = nonrigid_track[boxes_T.track[target.box_index[on_box]]]
         return WarpOutput(rgb, cov, len(sources), nonrigid)
 
+    @property
+    def images_at_once(self) -> int:
+        """Target images the writer may have this renderer render at once (its ``threads``)."""
+        return self.threads
+
     def storing(self) -> contextlib.AbstractContextManager:
         """Held by the writer around all its images: BLAS stays on one thread from the first image to the
         last (lifted and set again between images, OpenBLAS's idle threads spun for a quarter more CPU)."""
