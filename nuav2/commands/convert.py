@@ -99,7 +99,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="sample rate; default every LiDAR sweep (10 Hz); 2 gives nuScenes-like samples")
     p.add_argument("--workers", type=int, default=1,
                    help="parallel processes, one log each (with --executor ray and no address: the slots "
-                        "of the local Ray instance)")
+                        "of the local Ray instance); in warp mode a worker with two cores to itself renders "
+                        "two images at once")
     _add_executor_args(p)
     p.add_argument("--image-link", choices=["copy", "hardlink", "symlink"], default="copy",
                    help="how native images reach OUT (default: %(default)s)")
