@@ -1,8 +1,8 @@
 """Numba kernels of the warp: ground ray casting, lidar disk splatting, per-source backward warp.
 
 One loop over rays / points / pixels each, float64 geometry, no temporaries: the numpy
-versions of these spent most of their time allocating (N, 3) arrays. They release the GIL, so the warp
-builds a target's depth proxy while a second thread builds its new source views. The public wrappers in
+versions of these spent most of their time allocating (N, 3) arrays. They release the GIL, so two
+render threads of one log (``WarpRenderer.threads``) run at once. The public wrappers in
 ``depth_proxy`` and ``backward_warp`` check inputs and document the semantics.
 """
 

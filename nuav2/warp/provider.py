@@ -16,7 +16,6 @@ import hashlib
 import json
 import threading
 from collections import OrderedDict
-from collections.abc import Iterator
 from concurrent.futures import Future
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -45,27 +44,12 @@ def _threadpools() -> ThreadpoolController:
     return ThreadpoolController()  # scans the loaded libraries once
 
 
-_blas_lock = threading.Lock()
-_blas: dict = {"users": 0, "limiter": None}  # the limit holds while any render thread is inside
-
-
-@contextlib.contextmanager
-def one_blas_thread() -> Iterator[None]:
+def one_blas_thread() -> contextlib.AbstractContextManager:
     """Context: BLAS on one thread. The warp's matrix products are small (points x 3x3); OpenBLAS's
     second thread gained no wall time on a 15 s log and spun for 25 CPU s, taken from the other worker.
-    Counted, so a render thread that leaves never lifts the limit under another that is still inside."""
-    with _blas_lock:
-        if _blas["users"] == 0:
-            _blas["limiter"] = _threadpools().limit(limits=1, user_api="blas")
-        _blas["users"] += 1
-    try:
-        yield
-    finally:
-        with _blas_lock:
-            _blas["users"] -= 1
-            if _blas["users"] == 0:
-                _blas["limiter"].restore_original_limits()
-                _blas["limiter"] = None
+    Render threads nest theirs inside the writer's (``WarpRenderer.storing``), so each one restores the
+    limit it found: one thread."""
+    return _threadpools().limit(limits=1, user_api="blas")
 
 
 @dataclass(frozen=True)
@@ -183,26 +167,21 @@ class WarpRenderer:
     def city_T_ego_at(self, timestamp_ns: int) -> F64:
         t = int(timestamp_ns)
         with self._lock:
-            return self._city_T_ego_at(t)
-
-    def _city_T_ego_at(self, t: int) -> F64:
-        if t not in self._poses:
-            if len(self._poses) > 4096:
-                self._poses.clear()
-            self._poses[t] = self.scene.city_T_ego_at(t)
-        return self._poses[t]
+            if t not in self._poses:
+                if len(self._poses) > 4096:
+                    self._poses.clear()
+                self._poses[t] = self.scene.city_T_ego_at(t)
+            return self._poses[t]
 
     def boxes_at(self, timestamp_ns: int) -> BoxesAt:
+        t = int(timestamp_ns)
         with self._lock:
-            return self._boxes_at(int(timestamp_ns))
-
-    def _boxes_at(self, t: int) -> BoxesAt:
-        if t in self._boxes:
+            if t in self._boxes:
+                return self._boxes[t]
+            self._boxes[t] = self.tracks.at(t, DEFAULT_TOLERANCE_NS)
+            while len(self._boxes) > 256:
+                self._boxes.popitem(last=False)
             return self._boxes[t]
-        self._boxes[t] = self.tracks.at(t, DEFAULT_TOLERANCE_NS)
-        while len(self._boxes) > 256:
-            self._boxes.popitem(last=False)
-        return self._boxes[t]
 
     def ground_at(self, timestamp_ns: int) -> GroundSurface:
         """The ground plane under the ego at that time, refined by the log's height raster when it has one."""
@@ -212,11 +191,8 @@ class WarpRenderer:
 
     def geometry_at(self, timestamp_ns: int) -> tuple[ProxyGeometry, BoxesAt]:
         """Ground, static lidar points and boxes at ``timestamp_ns`` (the boxes also with their tracks)."""
-        with self._lock:
-            return self._geometry_at(timestamp_ns)
-
-    def _geometry_at(self, timestamp_ns: int) -> tuple[ProxyGeometry, BoxesAt]:
-        pts, radius = self.cloud.around(timestamp_ns)
+        with self._lock:  # the cloud's window cache
+            pts, radius = self.cloud.around(timestamp_ns)
         boxes = self.boxes_at(timestamp_ns)
         city_T_layer, size, actor_pts = boxes.city_T_box, boxes.size_lwh, None
         if self.layer_points is not None and len(boxes):
@@ -234,15 +210,12 @@ class WarpRenderer:
         (:mod:`nuav2.warp.harmonise`); None when harmonising is off."""
         if self.config.harmonise is None:
             return None
-        with self._lock:
-            return self._solve_exposure()
-
-    def _solve_exposure(self) -> tuple[ExposureModel, dict[tuple[str, int], int]]:
-        if self._exposure is None:
-            points = static_points(self.scene, lambda i: self.cloud.sweep_points(i)[0])
-            self._exposure = solve_source_exposure(self.scene, self.frames, points, self.config.harmonise,
-                                                   self.boxes_at)
-        return self._exposure
+        with self._lock:  # solved once; a second thread waits for it
+            if self._exposure is None:
+                points = static_points(self.scene, lambda i: self.cloud.sweep_points(i)[0])
+                self._exposure = solve_source_exposure(self.scene, self.frames, points, self.config.harmonise,
+                                                       self.boxes_at)
+            return self._exposure
 
     def _ego_valid(self, camera: CameraSpec) -> np.ndarray | None:
         with self._lock:
