@@ -105,3 +105,16 @@ def test_a_local_ray_that_cannot_start_is_a_one_line_error(synth_split: Path, re
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1
     assert err[0].startswith("nuav2 infos: --executor ray: a local Ray instance did not start (")
+
+
+def test_a_local_ray_gets_a_whole_number_of_cpus():
+    """Ray 2.60 hands its raylet ``min(cores, num_cpus)`` as an integer flag: ``--workers 2
+    --cpus-per-task 4`` (8.0) stopped the raylet on a 16-core machine, and 1.5 is refused outright."""
+    from nuav2.executors.ray_tasks import connected, whole_cpus
+
+    assert [whole_cpus(n) for n in (None, 8.0, 1.5, 0.25)] == [None, 8, 2, 1]
+    assert all(type(whole_cpus(n)) is int for n in (8.0, 1.5, 0.25))
+    assert not ray.is_initialized()
+    with connected(None, num_cpus=1.5) as r:  # before: "Resource quantities must all be whole numbers"
+        assert r.cluster_resources()["CPU"] == 2
+    assert not ray.is_initialized()

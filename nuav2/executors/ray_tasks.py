@@ -88,14 +88,24 @@ def connected(address: str | None = None, num_cpus: float | None = None) -> Iter
     else:
         # "local": a new instance, even where `ray start` left a cluster (or its address file) behind
         try:
-            ray.init(address="local", num_cpus=num_cpus, include_dashboard=False, log_to_driver=False,
-                     object_store_memory=LOCAL_OBJECT_STORE_BYTES, logging_level=logging.WARNING)
+            ray.init(address="local", num_cpus=whole_cpus(num_cpus), include_dashboard=False,
+                     log_to_driver=False, object_store_memory=LOCAL_OBJECT_STORE_BYTES,
+                     logging_level=logging.WARNING)
         except Exception as e:  # Ray raises a bare Exception when its raylet or GCS does not come up
             raise RayStartError(local_start_failure(e)) from e
     try:
         yield ray
     finally:
         ray.shutdown()
+
+
+def whole_cpus(num_cpus: float | None) -> int | None:
+    """The CPUs of a local Ray instance as an int (fractions rounded up). Ray 2.60 passes
+    ``min(cores, num_cpus)`` to its raylet as ``--maximum_startup_concurrency``, an integer flag:
+    ``8.0`` on a machine with more than 8 cores makes the raylet exit before it logs anything, and
+    ``ray.init`` then fails with "The current node timed out during startup" (seen on a 16-core GPU
+    machine with ``--workers 2 --cpus-per-task 4``; on 2 cores ``min`` picks the int core count)."""
+    return None if num_cpus is None else max(1, math.ceil(num_cpus))
 
 
 def use_token_if_present() -> None:
