@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -122,6 +123,12 @@ class GroundHeightRaster:
     R: F64  # (2, 2)
     t: F64  # (2,)
     s: float
+
+    @cached_property
+    def top(self) -> float:
+        """Highest finite height (``-inf`` if none): no ground under the raster reaches above it."""
+        finite = self.heights[np.isfinite(self.heights)]
+        return float(finite.max()) if finite.size else -np.inf
 
     def height_at(self, xy_city: np.ndarray) -> F64:
         """Ground z at (N, 2) city points; NaN where unknown or out of bounds."""

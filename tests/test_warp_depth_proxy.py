@@ -134,6 +134,37 @@ def test_ground_depth_predicted_in_blocks_matches_solving_every_ray_on_hills():
         assert np.quantile(rel, 0.99) <= 1.05 * np.quantile(rel_per_ray, 0.99) + 1e-4
 
 
+def test_march_skipping_samples_above_the_raster_top_changes_no_bit():
+    """The ray march steps over samples above both the raster's top and the plane without a height
+    lookup: the hits must be bit for bit those of the full march (h_top = inf never skips)."""
+    from nuav2.warp._kernels import MARCH_T0, _march_safe_t, ground_intersect_kernel
+
+    x0, res = -60.0, 0.3
+    yy, xx = np.mgrid[0:400, 0:400]
+    x, y = x0 + (xx + 0.5) * res, x0 + (yy + 0.5) * res
+    heights = (1.5 * np.sin(x / 9.0) * np.cos(y / 13.0) + 0.04 * x).astype(np.float32)
+    heights[180:200, 250:280] = np.nan
+    raster = GroundHeightRaster(heights, np.eye(2), np.array([-x0, -x0]), 1 / res)
+    assert raster.top == np.nanmax(heights)
+    n = np.array([0.03, -0.02, 1.0]) / np.linalg.norm([0.03, -0.02, 1.0])  # the plane shows off the raster
+    ground = GroundSurface(n, 0.2, raster)
+    rng = np.random.default_rng(11)
+    dirs = rng.normal(size=(6000, 3))
+    dirs[:, 2] = -np.abs(dirs[:, 2]) * rng.choice([0.02, 0.2, 1.0], 6000)  # grazing to steep
+    skipped = 0
+    for origin in ([0.0, 0.0, 4.0], [30.0, -20.0, 6.0], [-50.0, 40.0, 0.5]):  # the last sits below the top
+        origin = np.array(origin)
+        args = ground.ray_kernel_args()
+        for iterations in (1, 3):
+            fast, full = np.empty(len(dirs)), np.empty(len(dirs))
+            ground_intersect_kernel(origin, dirs, *args, iterations, 1e4, 1e-3, fast)
+            ground_intersect_kernel(origin, dirs, *args[:-1], np.inf, iterations, 1e4, 1e-3, full)
+            np.testing.assert_array_equal(fast.view(np.int64), full.view(np.int64))
+            assert np.isfinite(fast).mean() > 0.5
+        skipped += sum(_march_safe_t(*origin, *d, n, 0.2, raster.top) > MARCH_T0 for d in dirs[:500])
+    assert skipped > 300  # the skip is taken (from the two origins above the top)
+
+
 def test_raster_refinement_converges_on_a_gentle_slope():
     x0, res = -100.0, 0.1
     cols = np.arange(2000)

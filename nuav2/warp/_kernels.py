@@ -19,6 +19,7 @@ MARCH_T0 = 1e-3
 BISECTIONS = 16
 GROUND_BLOCK = 4  # ground rays solved in full every this many pixels, the others predicted and checked
 GROUND_PREDICT_TOL_M = 0.005  # a predicted hit is kept if the ray passes this close to the ground there
+MARCH_SAFE_M = 1e-6  # march samples this far above every possible ground height are stepped over
 
 
 @njit(cache=True, inline="always")
@@ -54,9 +55,26 @@ def _ground_height(x, y, normal, offset, heights, rR, rt, rs, has_raster):
 
 
 @njit(cache=True, inline="always")
-def _ground_ray(ox, oy, oz, dx, dy, dz, normal, offset, heights, rR, rt, rs, has_raster, iterations, t_max,
-                tol):  # pragma: no cover - compiled
-    """Ray parameter of one ray's ground hit (see ``GroundSurface.intersect``)."""
+def _march_safe_t(ox, oy, oz, dx, dy, dz, normal, offset, h_top):  # pragma: no cover - compiled
+    """Largest t up to which a descending ray stays ``MARCH_SAFE_M`` above both the raster's top
+    ``h_top`` and the plane (the heights ``_ground_height`` can return); -1 where it does not start so."""
+    if not oz - h_top >= MARCH_SAFE_M:
+        return -1.0
+    t = (oz - h_top - MARCH_SAFE_M) / -dz
+    g0 = oz - (offset - normal[0] * ox - normal[1] * oy) / normal[2]  # ray height above the plane: g0 + t g1
+    if not g0 >= MARCH_SAFE_M:
+        return -1.0
+    g1 = dz + (normal[0] * dx + normal[1] * dy) / normal[2]
+    if g1 < 0.0:
+        t = min(t, (g0 - MARCH_SAFE_M) / -g1)
+    return t
+
+
+@njit(cache=True, inline="always")
+def _ground_ray(ox, oy, oz, dx, dy, dz, normal, offset, heights, rR, rt, rs, has_raster, h_top, iterations,
+                t_max, tol):  # pragma: no cover - compiled
+    """Ray parameter of one ray's ground hit (see ``GroundSurface.intersect``); ``h_top``: the raster's
+    highest height (``GroundHeightRaster.top``)."""
     norm = math.sqrt(dx * dx + dy * dy + dz * dz)
     nd = normal[0] * dx + normal[1] * dy + normal[2] * dz
     t = math.inf
@@ -79,15 +97,22 @@ def _ground_ray(ox, oy, oz, dx, dy, dz, normal, offset, heights, rR, rt, rs, has
         h = _ground_height(ox + t * dx, oy + t * dy, normal, offset, heights, rR, rt, rs, has_raster)
         if abs(oz + t * dz - h) <= tol:
             return t
-    # March to the first sample below the ground, then bisect the crossing.
+    # March to the first sample below the ground, then bisect the crossing. Samples up to t_safe are
+    # above any height the ground can have, so their test is known to fail: no height lookup there.
     ratio = (t_max / MARCH_T0) ** (1.0 / (MARCH_SAMPLES - 1))
+    t_safe = _march_safe_t(ox, oy, oz, dx, dy, dz, normal, offset, h_top)
     t_prev = MARCH_T0
-    h0 = _ground_height(ox + t_prev * dx, oy + t_prev * dy, normal, offset, heights, rR, rt, rs, has_raster)
-    if oz + t_prev * dz < h0:
-        return math.inf
+    if t_prev > t_safe:
+        h0 = _ground_height(ox + t_prev * dx, oy + t_prev * dy, normal, offset, heights, rR, rt, rs,
+                            has_raster)
+        if oz + t_prev * dz < h0:
+            return math.inf
     tk = t_prev
     for _ in range(1, MARCH_SAMPLES):
         tk = tk * ratio
+        if tk <= t_safe:
+            t_prev = tk
+            continue
         hk = _ground_height(ox + tk * dx, oy + tk * dy, normal, offset, heights, rR, rt, rs, has_raster)
         if oz + tk * dz < hk:
             lo, hi = t_prev, tk
@@ -105,11 +130,11 @@ def _ground_ray(ox, oy, oz, dx, dy, dz, normal, offset, heights, rR, rt, rs, has
 
 
 @njit(cache=True, nogil=True)
-def ground_intersect_kernel(origin, dirs, normal, offset, heights, rR, rt, rs, has_raster, iterations, t_max,
-                            tol, out):  # pragma: no cover - compiled
+def ground_intersect_kernel(origin, dirs, normal, offset, heights, rR, rt, rs, has_raster, h_top, iterations,
+                            t_max, tol, out):  # pragma: no cover - compiled
     for i in range(dirs.shape[0]):
         out[i] = _ground_ray(origin[0], origin[1], origin[2], dirs[i, 0], dirs[i, 1], dirs[i, 2], normal,
-                             offset, heights, rR, rt, rs, has_raster, iterations, t_max, tol)
+                             offset, heights, rR, rt, rs, has_raster, h_top, iterations, t_max, tol)
 
 
 @njit(cache=True, nogil=True)
@@ -303,8 +328,8 @@ def box_depth_kernel(K, box_T_cam, half, rects, near, max_depth, depth, index): 
 
 
 @njit(cache=True, nogil=True)
-def ground_depth_kernel(K, city_T_cam, normal, offset, heights, rR, rt, rs, has_raster, iterations, t_max,
-                        tol, near, max_depth, depth):  # pragma: no cover - compiled
+def ground_depth_kernel(K, city_T_cam, normal, offset, heights, rR, rt, rs, has_raster, h_top, iterations,
+                        t_max, tol, near, max_depth, depth):  # pragma: no cover - compiled
     """Camera z of the ground for every pixel (rays generated here; ``inf`` outside [near, max_depth]).
 
     With a raster, rays are solved in full only on a grid every ``GROUND_BLOCK`` pixels (and where a
@@ -330,7 +355,7 @@ def ground_depth_kernel(K, city_T_cam, normal, offset, heights, rR, rt, rs, has_
             dy = city_T_cam[1, 0] * rx + city_T_cam[1, 1] * ry + city_T_cam[1, 2]
             dz = city_T_cam[2, 0] * rx + city_T_cam[2, 1] * ry + city_T_cam[2, 2]
             grid[kr, kc] = _ground_ray(ox, oy, oz, dx, dy, dz, normal, offset, heights, rR, rt, rs,
-                                       has_raster, iterations, t_max, tol)
+                                       has_raster, h_top, iterations, t_max, tol)
     for row in range(h):
         ry = (row - cy) / fy
         kr = min(row // S, n_r - 2) if n_r > 1 else 0
@@ -367,7 +392,7 @@ def ground_depth_kernel(K, city_T_cam, normal, offset, heights, rR, rt, rs, has_
                             solved = t >= 0.0
                 if not solved:
                     t = _ground_ray(ox, oy, oz, dx, dy, dz, normal, offset, heights, rR, rt, rs, has_raster,
-                                    iterations, t_max, tol)
+                                    h_top, iterations, t_max, tol)
             depth[row, col] = t if (t >= near and t <= max_depth) else math.inf
 
 

@@ -108,7 +108,7 @@ class GroundSurface:
         origin = np.ascontiguousarray(origin, dtype=np.float64)
         dirs = np.ascontiguousarray(np.asarray(dirs, dtype=np.float64).reshape(-1, 3))
         out = np.empty(len(dirs))
-        ground_intersect_kernel(origin, dirs, *self.kernel_args(), int(iterations), float(t_max),
+        ground_intersect_kernel(origin, dirs, *self.ray_kernel_args(), int(iterations), float(t_max),
                                 float(tol_m), out)
         return out
 
@@ -120,6 +120,10 @@ class GroundSurface:
         rt = np.zeros(2) if r is None else np.ascontiguousarray(r.t, np.float64)
         return (np.ascontiguousarray(self.normal, np.float64), float(self.offset), heights, rR, rt,
                 1.0 if r is None else float(r.s), r is not None)
+
+    def ray_kernel_args(self) -> tuple:
+        """``kernel_args`` and the raster's top height, which lets ray marches skip lookups above it."""
+        return (*self.kernel_args(), -np.inf if self.raster is None else self.raster.top)
 
 
 def pixel_rays_cam(camera: CameraSpec) -> F64:
@@ -138,7 +142,7 @@ def ground_depth(camera: CameraSpec, city_T_cam: F64, ground: GroundSurface, con
     """(H, W) camera z of the ground under each pixel; ``inf`` above the horizon or beyond max depth."""
     depth = np.empty((camera.height, camera.width))
     ground_depth_kernel(np.ascontiguousarray(camera.K, dtype=np.float64),
-                        np.ascontiguousarray(city_T_cam, dtype=np.float64), *ground.kernel_args(),
+                        np.ascontiguousarray(city_T_cam, dtype=np.float64), *ground.ray_kernel_args(),
                         int(config.ground_iterations), GROUND_T_MAX, GROUND_TOL_M, config.near_m,
                         config.max_depth_m, depth)
     return depth
