@@ -222,9 +222,9 @@ def log_threads(options: ConvertOptions) -> int:
     """Threads one warp-mode log uses: 2 where its worker has two cores to itself (one local worker on
     this machine, or Ray tasks of 2+ CPUs), else 1; the images are the same either way."""
     if options.executor == "ray":
-        from nuav2.executors.ray_tasks import DEFAULT_CPUS
+        from nuav2.executors.ray_tasks import task_cpus
 
-        cpus = options.cpus_per_task if options.cpus_per_task is not None else DEFAULT_CPUS[options.mode]
+        cpus = task_cpus(options)
     else:
         cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
         cpus = cores / options.workers

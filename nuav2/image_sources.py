@@ -22,7 +22,14 @@ import numpy as np
 
 from nuav2.atomic import atomic_write_json
 from nuav2.geometry import F64
-from nuav2.nuscenes_db.images import CameraShot, ImageSource, NativeImages, RenderedImages
+from nuav2.nuscenes_db.images import (
+    CameraShot,
+    ImageSource,
+    NativeImages,
+    RenderedImages,
+    images_at_once_of,
+    storing_of,
+)
 from nuav2.nuscenes_db.writer import output_rig_native
 from nuav2.rig import CameraSpec, Rig, load_rig
 from nuav2.scene import SceneLog
@@ -63,10 +70,10 @@ class QualityRecordingImages:
 
     @property
     def images_at_once(self) -> int:
-        return int(getattr(self.inner, "images_at_once", 1))
+        return images_at_once_of(self.inner)
 
     def storing(self) -> contextlib.AbstractContextManager:
-        return getattr(self.inner, "storing", contextlib.nullcontext)()
+        return storing_of(self.inner)
 
     @property
     def device(self) -> str | None:

@@ -241,13 +241,18 @@ def check_shared_storage(ray, dataroot: Path, token: str) -> None:
                            f"mounted at the same path everywhere: " + "; ".join(bad))
 
 
+def task_cpus(options) -> float:
+    """CPUs of one log's Ray task: ``--cpus-per-task``, else the mode's default."""
+    return options.cpus_per_task if options.cpus_per_task is not None else DEFAULT_CPUS[options.mode]
+
+
 def task_resources(cluster: dict[str, float], options) -> dict:
     """Ray resources of one conversion task: CPUs and memory (options or per-mode defaults), and in
     render mode one GPU when the cluster has GPUs and ``--device`` is not ``cpu`` (``gpus_per_task``
     overrides, 0 forces CPU). ``--device cuda`` where no task can get a GPU is a ConvertError."""
     from nuav2.convert import ConvertError
 
-    cpus = options.cpus_per_task if options.cpus_per_task is not None else DEFAULT_CPUS[options.mode]
+    cpus = task_cpus(options)
     mem_gb = (options.memory_per_task_gb if options.memory_per_task_gb is not None
               else DEFAULT_MEMORY_GB[options.mode])
     device = options.device if options.mode == "render" else "cpu"
@@ -280,7 +285,7 @@ def run_ray(jobs: list[Path], dataroot: Path, options, progress: BatchProgress,
 
     if not jobs:
         return []
-    local_cpus = options.workers * (options.cpus_per_task or DEFAULT_CPUS[options.mode])
+    local_cpus = options.workers * task_cpus(options)
     try:
         with connected(options.ray_address, num_cpus=local_cpus) as ray:
             return _run_connected(ray, jobs, Path(dataroot).resolve(), options, progress, fault)

@@ -35,6 +35,16 @@ IMAGE_LINKS: tuple[str, ...] = ("copy", "hardlink", "symlink")
 RenderFn = Callable[[str, CameraSpec, F64, int], np.ndarray]
 
 
+def images_at_once_of(source: object) -> int:
+    """Images ``source`` may store at once (its optional ``images_at_once``; 1 when it has none)."""
+    return int(getattr(source, "images_at_once", 1))
+
+
+def storing_of(source: object) -> contextlib.AbstractContextManager:
+    """``source``'s optional context around the writer's whole image loop (a null context if none)."""
+    return getattr(source, "storing", contextlib.nullcontext)()
+
+
 class ImageSourceError(ValueError):
     """An image is missing, unreadable or has the wrong size; the message names the file."""
 
@@ -203,8 +213,8 @@ class RenderedImages:
     @property
     def images_at_once(self) -> int:
         """Images the writer may store at once: the renderer's ``images_at_once`` (1 when it has none)."""
-        return int(getattr(self.render, "images_at_once", 1))
+        return images_at_once_of(self.render)
 
     def storing(self) -> contextlib.AbstractContextManager:
         """The renderer's context around the writer's whole image loop, if it has one."""
-        return getattr(self.render, "storing", contextlib.nullcontext)()
+        return storing_of(self.render)

@@ -17,7 +17,6 @@ collide; each file is written atomically); the records are returned and saved as
 
 from __future__ import annotations
 
-import contextlib
 import logging
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -27,7 +26,7 @@ import numpy as np
 from nuav2.geometry import F64, egoS_T_egoT_from_heights
 from nuav2.nuscenes_db import annotations as ann_mod
 from nuav2.nuscenes_db import records as rec
-from nuav2.nuscenes_db.images import CameraShot, ImageSource
+from nuav2.nuscenes_db.images import CameraShot, ImageSource, images_at_once_of, storing_of
 from nuav2.nuscenes_db.keyframes import (
     KEY_IMAGE_TOLERANCE_NS,
     Timeline,
@@ -264,8 +263,8 @@ def _write_cameras(scene: SceneLog, timeline: Timeline, out_rig: Rig, images: Im
     # A source that can store several images at once says so (``images_at_once``, warp mode's threads); the
     # files are the same either way.
     # ``storing()``: a context the source holds around the whole loop (warp mode: BLAS on one thread).
-    with getattr(images, "storing", contextlib.nullcontext)():
-        stored = ordered_thread_map(store, cam_frames, int(getattr(images, "images_at_once", 1)))
+    with storing_of(images):
+        stored = ordered_thread_map(store, cam_frames, images_at_once_of(images))
         bar = progress_bar(stored, total=len(cam_frames), desc=f"{scene.log_id[:8]} cameras", unit="img",
                            leave=False, disable=not options.show_progress or not cam_frames)
         for f, rel in zip(cam_frames, bar):

@@ -223,12 +223,9 @@ class WarpRenderer:
                 self._valid[camera.channel] = ~camera.ego_mask() if camera.ego_mask_polygons else None
             return self._valid[camera.channel]
 
-    def _view_key(self, channel: str, index: int) -> tuple[str, int]:
-        return channel, int(self.frames[channel][index].timestamp_ns)
-
     def source_view(self, channel: str, index: int) -> SourceView:
         """Source image ``index`` of ``channel`` with its own depth proxy (cached)."""
-        key = self._view_key(channel, index)
+        key = (channel, int(self.frames[channel][index].timestamp_ns))
         with self._lock:
             if key in self._views:
                 self._views.move_to_end(key)
@@ -267,7 +264,7 @@ class WarpRenderer:
             image = exposure[0].correct(image, exposure[1][(channel, index)], cam.K)
         return SourceView(image, cam, city_T_cam, t, vis_cam, proxy.inverse_depth(), self._ego_valid(cam))
 
-    def _keep_view(self, key: tuple[str, int], view: SourceView) -> SourceView:
+    def _keep_view(self, key: tuple[str, int], view: SourceView) -> None:
         """Cache ``view`` (least recently used views leave past ``cache_mb``)."""
         nbytes = view.image.nbytes + view.inv_depth.nbytes
         self._views[key] = view
@@ -275,7 +272,6 @@ class WarpRenderer:
         while self._view_bytes > self.config.cache_mb * 2**20 and len(self._views) > 1:
             _, old = self._views.popitem(last=False)
             self._view_bytes -= old.image.nbytes + old.inv_depth.nbytes
-        return view
 
     def source_candidates(self, camera: CameraSpec, city_T_cam: F64,
                           timestamp_ns: int) -> list[tuple[str, int]]:
