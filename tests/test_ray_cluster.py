@@ -118,3 +118,33 @@ def test_a_local_ray_gets_a_whole_number_of_cpus():
     with connected(None, num_cpus=1.5) as r:  # before: "Resource quantities must all be whole numbers"
         assert r.cluster_resources()["CPU"] == 2
     assert not ray.is_initialized()
+
+
+def test_a_local_ray_runs_no_more_logs_at_once_than_workers():
+    """``--workers 3 --cpus-per-task 0.5`` rounds up to 2 CPUs, room for 4 half-CPU tasks; the
+    local instance's log slots keep it at 3."""
+    from nuav2.convert import ConvertOptions
+    from nuav2.executors.ray_tasks import LOG_SLOT, connected, slots, task_resources
+
+    options = ConvertOptions(mode="native", executor="ray", workers=3, cpus_per_task=0.5,
+                             memory_per_task_gb=0)
+    assert not ray.is_initialized()
+    with connected(None, num_cpus=1.5, log_slots=3) as r:
+        cluster = r.cluster_resources()
+        res = task_resources(cluster, options)
+        assert cluster["CPU"] == 2 and res["resources"] == {LOG_SLOT: 1.0}
+        assert slots(cluster, res) == 3
+        assert slots(cluster, {k: v for k, v in res.items() if k != "resources"}) == 4  # without them
+
+        @r.remote
+        def span(_):
+            import time
+            start = time.monotonic()
+            time.sleep(0.5)
+            return start, time.monotonic()
+
+        spans = r.get([span.options(**res).remote(i) for i in range(8)])
+        at_once = max(sum(s <= t < e for s, e in spans) for t, _ in spans)
+        assert 1 <= at_once <= 3
+    assert not ray.is_initialized()
+    assert "resources" not in task_resources({"CPU": 8.0}, options)  # clusters without slots

@@ -35,6 +35,9 @@ LOCAL_OBJECT_STORE_BYTES = 256 * 2**20  # tasks return small dicts; the shards g
 # (0.3 / 0.7 / 0.8 GB, `nuav2 bench scale` and docs/cluster.md) with room for full-size AV2 logs.
 DEFAULT_CPUS = {"native": 1.0, "warp": 1.0, "render": 2.0}
 DEFAULT_MEMORY_GB = {"native": 2.0, "warp": 4.0, "render": 8.0}
+# A custom resource of a local instance: ``--workers`` of it, one per task, so rounding fractional
+# ``--cpus-per-task`` up to whole CPUs (``whole_cpus``) never lets more logs run than ``--workers``.
+LOG_SLOT = "nuav2_log_slot"
 
 
 class RayMissingError(ImportError):
@@ -70,9 +73,11 @@ def import_ray():
 
 
 @contextlib.contextmanager
-def connected(address: str | None = None, num_cpus: float | None = None) -> Iterator:
+def connected(address: str | None = None, num_cpus: float | None = None,
+              log_slots: int | None = None) -> Iterator:
     """Ray, connected: the running session if there is one (left running), the cluster at ``address``
-    (or ``RAY_ADDRESS``), else a local instance with ``num_cpus`` CPUs, no dashboard (shut down after)."""
+    (or ``RAY_ADDRESS``), else a local instance with ``num_cpus`` CPUs and ``log_slots`` of
+    :data:`LOG_SLOT`, no dashboard (shut down after)."""
     ray = import_ray()
     if ray.is_initialized():
         yield ray
@@ -89,6 +94,7 @@ def connected(address: str | None = None, num_cpus: float | None = None) -> Iter
         # "local": a new instance, even where `ray start` left a cluster (or its address file) behind
         try:
             ray.init(address="local", num_cpus=whole_cpus(num_cpus), include_dashboard=False,
+                     resources={LOG_SLOT: log_slots} if log_slots else None,
                      log_to_driver=False, object_store_memory=LOCAL_OBJECT_STORE_BYTES,
                      logging_level=logging.WARNING)
         except Exception as e:  # Ray raises a bare Exception when its raylet or GCS does not come up
@@ -249,7 +255,8 @@ def task_cpus(options) -> float:
 def task_resources(cluster: dict[str, float], options) -> dict:
     """Ray resources of one conversion task: CPUs and memory (options or per-mode defaults), and in
     render mode one GPU when the cluster has GPUs and ``--device`` is not ``cpu`` (``gpus_per_task``
-    overrides, 0 forces CPU). ``--device cuda`` where no task can get a GPU is a ConvertError."""
+    overrides, 0 forces CPU), and one :data:`LOG_SLOT` where the cluster has them (a local instance).
+    ``--device cuda`` where no task can get a GPU is a ConvertError."""
     from nuav2.convert import ConvertError
 
     cpus = task_cpus(options)
@@ -265,6 +272,8 @@ def task_resources(cluster: dict[str, float], options) -> dict:
     res = {"num_cpus": float(cpus), "num_gpus": float(gpus)}
     if mem_gb > 0:
         res["memory"] = int(mem_gb * 2**30)
+    if cluster.get(LOG_SLOT, 0) >= 1:
+        res["resources"] = {LOG_SLOT: 1.0}
     return res
 
 
@@ -275,6 +284,7 @@ def slots(cluster: dict[str, float], res: dict) -> int:
         fits.append(cluster.get("GPU", 0) / res["num_gpus"])
     if res.get("memory"):
         fits.append(cluster.get("memory", 0) / res["memory"])
+    fits += [cluster.get(name, 0) / need for name, need in res.get("resources", {}).items()]
     return max(0, math.floor(min(fits))) if fits else 1
 
 
@@ -287,7 +297,7 @@ def run_ray(jobs: list[Path], dataroot: Path, options, progress: BatchProgress,
         return []
     local_cpus = options.workers * task_cpus(options)
     try:
-        with connected(options.ray_address, num_cpus=local_cpus) as ray:
+        with connected(options.ray_address, num_cpus=local_cpus, log_slots=options.workers) as ray:
             return _run_connected(ray, jobs, Path(dataroot).resolve(), options, progress, fault)
     except RayStartError as e:
         raise ConvertError(str(e)) from e
