@@ -166,7 +166,9 @@ def test_city_map_and_ground(scene):
 def test_log_with_own_calibration_and_split(tmp_log, scene):
     log_dir = tmp_log(parent="val")
     own = read_log(log_dir, require_cameras=False)
-    assert own.split == "val"
+    assert own.split == "val"  # the split dir the log sits in wins
+    assert scene.split == "train"  # outside a split dir: av2's published list names the log train
+    assert read_log(tmp_log(name="not-an-av2-log-id"), require_cameras=False).split == ""
     assert np.array_equal(own.city_T_ego, scene.city_T_ego)
     assert all(np.array_equal(a.ego_T_cam, b.ego_T_cam) for a, b in zip(own.rig.cameras, scene.rig.cameras))
 

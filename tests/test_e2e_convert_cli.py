@@ -61,6 +61,26 @@ def test_scene_names_avoid_nuscenes_lists_and_do_not_depend_on_other_logs(native
     assert all(3000 <= int(n[6:]) <= 9999 for n in two.values())  # synthetic logs are in no av2 list
 
 
+def test_a_nuscenes_version_name_warns_that_its_devkit_splits_select_none_of_these_scenes(
+        synth_log: Path, tmp_path: Path, caplog):
+    """``--version v1.0-trainval`` (what mmdet3d configs expect) converts, but the devkit's
+    train/val lists of that version, which stock converters and load_gt use, hold none of our
+    scenes: the user is told once, with the split keys that do work."""
+    from nuscenes.utils.splits import create_splits_scenes
+
+    out = tmp_path / "out"
+    assert cli("convert", "av2", synth_log.parent, out, "--version", "v1.0-trainval", "--no-progress")[0] == 0
+    warned = [r.getMessage() for r in caplog.records if "v1.0-trainval" in r.getMessage()]
+    assert len(warned) == 1 and "av2_train" in warned[0] and "\n" not in warned[0]
+    names = {s["name"] for s in json.loads((out / "v1.0-trainval" / "scene.json").read_text())}
+    devkit = create_splits_scenes()
+    assert names and not names & (set(devkit["train"]) | set(devkit["val"]))
+    assert json.loads((out / "v1.0-trainval" / "splits.json").read_text())["av2_train"] == sorted(names)
+    caplog.clear()
+    assert cli("convert", "av2", synth_log.parent, tmp_path / "own", "--no-progress")[0] == 0
+    assert not [r for r in caplog.records if "splits of that version" in r.getMessage()]
+
+
 # ------------------------------------------------------------------ finding 7: file modes
 
 

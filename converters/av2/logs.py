@@ -43,6 +43,14 @@ def find_logs(src: Path) -> list[Path]:
 
 
 def split_of(log_dir: Path) -> str:
-    """Source split name when the log sits in a train/val/test dir, else ''."""
+    """Source split name: the train/val/test dir the log sits in, else the av2 sensor split list
+    that names its log id (a log copied out of its split dir keeps its split), else ''."""
     parent = log_dir.absolute().parent.name
-    return parent if parent in SPLITS else ""
+    return parent if parent in SPLITS else published_split(log_dir.name)
+
+
+def published_split(log_id: str) -> str:
+    """The split of ``log_id`` in av2's published sensor split lists, '' when none names it."""
+    from av2.datasets.sensor.splits import TEST, TRAIN, VAL
+
+    return next((name for name, ids in zip(SPLITS, (TRAIN, VAL, TEST)) if log_id in ids), "")

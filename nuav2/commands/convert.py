@@ -4,11 +4,17 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import sys
 from pathlib import Path
 
 from nuav2.cli import group
 from nuav2.image_sources import MODES
+
+log = logging.getLogger(__name__)
+# Versions whose devkit split names (create_splits_scenes: train/val/test, mini_*) are nuScenes'
+# own scene lists: stock converters and load_gt select scenes by them, and find none of ours.
+_NUSCENES_VERSIONS = ("v1.0-trainval", "v1.0-test", "v1.0-mini")
 
 # Flags that only some modes use: given in another mode they are an error, not silently ignored.
 _TARGET_RIG_MODES = ("warp", "render", "truth")
@@ -38,7 +44,13 @@ def _options(args: argparse.Namespace):  # -> nuav2.convert.ConvertOptions (impo
 def _run(args: argparse.Namespace) -> int:
     from nuav2.convert import REPORT_FILE, convert_av2
 
-    report = convert_av2(args.src, args.out, _options(args))
+    options = _options(args)
+    if options.version in _NUSCENES_VERSIONS:
+        log.warning("--version %s: the devkit's train/val/test/mini splits of that version are nuScenes' own "
+                    "scene lists (used by MapTR's and mmdet3d's stock converters and load_gt); none of these "
+                    "scenes is in them. Select scenes by this database's splits.json keys (av2_train, "
+                    "eval_set='av2_val', `nuav2 infos`, `nuav2 split`)", options.version)
+    report = convert_av2(args.src, args.out, options)
     summary = {"dataroot": report.dataroot, "version": report.version, "converted": len(report.converted),
                "resumed": len(report.resumed), "merged_earlier": len(report.merged_earlier),
                "failed": len(report.failed),
