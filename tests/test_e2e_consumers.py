@@ -194,3 +194,27 @@ def test_render_map_in_image_draws_patches(db: Path, nusc):
             drawn += len(ax.patches)
             plt.close("all")
         assert drawn > 0, log["location"]
+
+
+def test_prediction_rasterizer_draws_the_agents_map(db: Path, nusc):
+    """nuscenes.prediction's StaticLayerRasterizer loads its maps by the four nuScenes names; the
+    hook opens the log table's nuAV2 locations instead, so the stock input representation works."""
+    from nuscenes.prediction import PredictHelper
+    from nuscenes.prediction.input_representation.agents import AgentBoxesWithFadedHistory
+    from nuscenes.prediction.input_representation.combinators import Rasterizer
+    from nuscenes.prediction.input_representation.interface import InputRepresentation
+    from nuscenes.prediction.input_representation.static_layers import StaticLayerRasterizer
+
+    helper = PredictHelper(nusc)
+    static = StaticLayerRasterizer(helper)
+    cars = [a for a in nusc.sample_annotation if a["category_name"].startswith("vehicle.car")]
+    assert cars
+    ann = cars[len(cars) // 2]
+    agents = AgentBoxesWithFadedHistory(helper, seconds_of_history=1)
+    image = InputRepresentation(static, agents, Rasterizer()).make_input_representation(
+        ann["instance_token"], ann["sample_token"])
+    assert image.shape == (500, 500, 3)
+    layers = static.make_representation(ann["instance_token"], ann["sample_token"])
+    drivable = np.all(layers == 255, axis=2).mean()  # drivable_area is drawn white
+    assert 0.05 < drivable < 0.95
+    assert len(static.maps.names) == len(nusc.log) and set(static.maps) <= set(static.maps.names)

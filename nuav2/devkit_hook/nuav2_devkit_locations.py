@@ -23,12 +23,17 @@ The registration patches, in memory only (the devkit on disk is untouched):
    ``maps/<md5(location)>.png`` (the devkit looks the md5 up in a fixed dict).
 4. shapely 2 compatibility (a no-op in effect on shapely 1.8), which the devkit also needs for
    its own maps: ``descartes``' polygon path and ``mask_for_lines`` on multi-part lines.
+5. The prediction rasterizer's ``static_layers.load_all_maps`` loads the four nuScenes maps by
+   name; on a dataroot whose ``log`` table names nuAV2 locations it returns a mapping that opens
+   a location's map when the rasterizer first asks for it (a few most recent kept open: a full
+   conversion has one location per log).
 
 Importing the devkit costs seconds, so nothing is imported eagerly: a post-import hook applies
 each patch when ``nuscenes.map_expansion.map_api`` / ``bitmap`` or ``descartes.patch`` is first
 imported, or at once if it already is. Installing twice is harmless.
 """
 
+import collections
 import hashlib
 import importlib.abc
 import os
@@ -100,6 +105,43 @@ def _patch_map_api(map_api):
     explorer.mask_for_lines = staticmethod(mask_for_lines)
 
 
+class LazyMaps(dict):
+    """{location: NuScenesMap} that opens a map on first use and keeps the ``keep`` latest open."""
+
+    def __init__(self, dataroot, names, open_map, keep=8):
+        super().__init__()
+        self.dataroot, self.names, self._open, self.keep = dataroot, names, open_map, keep
+        self._order = collections.deque()
+
+    def __missing__(self, name):
+        if name not in self.names:
+            raise KeyError(name)
+        while len(self._order) >= self.keep:
+            dict.pop(self, self._order.popleft(), None)
+        nmap = self._open(self.dataroot, map_name=name)
+        self[name] = nmap
+        self._order.append(name)
+        return nmap
+
+    def __contains__(self, name):
+        return name in self.names
+
+
+def _patch_static_layers(static_layers):
+    devkit_load_all_maps = static_layers.load_all_maps
+    if getattr(devkit_load_all_maps, _PATCHED, False):
+        return
+
+    def load_all_maps(helper, verbose=False):
+        names = sorted(set(log["location"] for log in helper.data.log))
+        if not any(is_av2_location(n) for n in names):
+            return devkit_load_all_maps(helper, verbose)
+        return LazyMaps(helper.data.dataroot, names, static_layers.NuScenesMap)
+
+    setattr(load_all_maps, _PATCHED, True)
+    static_layers.load_all_maps = load_all_maps
+
+
 def _patch_bitmap(bitmap):
     cls = bitmap.BitMap
     if getattr(cls.load_bitmap, _PATCHED, False):
@@ -156,6 +198,7 @@ PATCHERS = {
     "nuscenes.map_expansion.map_api": _patch_map_api,
     "nuscenes.map_expansion.bitmap": _patch_bitmap,
     "descartes.patch": _patch_descartes,
+    "nuscenes.prediction.input_representation.static_layers": _patch_static_layers,
 }
 
 
