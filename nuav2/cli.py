@@ -16,6 +16,7 @@ import traceback
 from pathlib import Path
 
 import nuav2.commands
+from nuav2.cli_types import OneLineParser
 
 _GROUPS: dict[str, argparse._SubParsersAction] = {}
 _TOP: argparse._SubParsersAction | None = None
@@ -68,7 +69,7 @@ def group(name: str, help: str) -> argparse._SubParsersAction:
 def build_parser() -> argparse.ArgumentParser:
     global _TOP
     _GROUPS.clear()
-    parser = argparse.ArgumentParser(
+    parser = OneLineParser(
         prog="nuav2", description="Argoverse 2 -> nuScenes databases, re-rendered into any camera rig.")
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     _TOP = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
