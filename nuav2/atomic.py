@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import logging
 import os
 import shutil
 import tempfile
@@ -50,24 +51,44 @@ def atomic_write_json(path: str | Path, obj, indent: int | None = None) -> None:
 
 @contextlib.contextmanager
 def atomic_directory(final: str | Path) -> Iterator[Path]:
-    """Yield a temp directory; on success it is renamed to ``final`` (replacing an old one)."""
+    """Yield a temp directory; on success it is renamed to ``final`` (replacing an old one).
+
+    The old one is first renamed aside under a fresh hidden name, then removed; where it cannot
+    be removed (a read-only file in it) it stays under that name with a warning, and never
+    blocks a later write (a fixed ``.old`` name did: "Directory not empty" on every rerun)."""
     final = Path(final)
     final.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{final.name}.", suffix=".partial", dir=final.parent))
+    tmp = None
     try:
+        tmp = Path(tempfile.mkdtemp(prefix=f".{final.name}.", suffix=".partial", dir=final.parent))
         os.chmod(tmp, dir_mode())
         yield tmp
         if final.exists():
-            old = final.with_name(f".{final.name}.old")
-            shutil.rmtree(old, ignore_errors=True)
-            os.replace(final, old)
-            os.replace(tmp, final)
-            shutil.rmtree(old, ignore_errors=True)
+            old = Path(tempfile.mkdtemp(prefix=f".{final.name}.", suffix=".old", dir=final.parent))
+            _replace(final, old)
+            _replace(tmp, final)
+            _remove_or_warn(old)
         else:
-            os.replace(tmp, final)
+            _replace(tmp, final)
     except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
+        if tmp is not None:
+            shutil.rmtree(tmp, ignore_errors=True)
         raise
+
+
+def _replace(src: Path, dst: Path) -> None:
+    """``os.replace``; an error names ``dst`` (the user's path), not the hidden temp name."""
+    try:
+        os.replace(src, dst)
+    except OSError as e:
+        raise OSError(e.errno, f"{e.strerror} (replacing it with {src.name})", str(dst)) from None
+
+
+def _remove_or_warn(path: Path) -> None:
+    shutil.rmtree(path, ignore_errors=True)
+    if path.exists():
+        logging.getLogger(__name__).warning("%s: could not remove the replaced copy (read-only files?); "
+                                            "delete it by hand", path)
 
 
 @contextlib.contextmanager
@@ -76,15 +97,17 @@ def atomic_file(path: str | Path) -> Iterator:
     to ``path`` (with the mode an ordinary ``open`` gives under the umask); on failure removed."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    tmp = None
     try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
         with os.fdopen(fd, "wb") as f:
             os.fchmod(f.fileno(), file_mode())
             yield f
             f.flush()
             os.fsync(f.fileno())
-        os.replace(tmp, path)
+        _replace(Path(tmp), path)
     except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp)
+        if tmp is not None:
+            with contextlib.suppress(FileNotFoundError):
+                os.unlink(tmp)
         raise

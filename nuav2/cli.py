@@ -8,10 +8,14 @@ traceback too. Commands raise :class:`UsageError` for a bad argument they detect
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import logging
+import os
 import pkgutil
+import signal
 import sys
+import threading
 import traceback
 from pathlib import Path
 
@@ -28,6 +32,16 @@ INPUT_ERRORS = (OSError, ValueError, LookupError, AssertionError, UnicodeError)
 
 class UsageError(ValueError):
     """A command-line argument is wrong; the message names the flag or path."""
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM (``kill``, ``docker stop``, a batch scheduler): unwound like Ctrl-C, so every
+    half-written file is removed on the way out, instead of the process dying where it stands."""
+
+
+def _raise_terminated(signum, frame) -> None:  # noqa: ARG001 - signal handler signature
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)  # a second one must not cut the cleanup short
+    raise Terminated()
 
 
 def require_database(dataroot: str | Path, version: str) -> Path:
@@ -78,21 +92,45 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _log_above_progress_bars():
+    """On a terminal, log lines are printed above the tqdm bars instead of onto the bar's line."""
+    from nuav2.progress import stderr_is_tty
+
+    if not stderr_is_tty():
+        return contextlib.nullcontext()
+    from tqdm.contrib.logging import logging_redirect_tqdm
+
+    return logging_redirect_tqdm()
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
                         format="%(levelname)s %(name)s: %(message)s")
+    in_main_thread = threading.current_thread() is threading.main_thread()  # signal.signal's rule
+    previous = signal.signal(signal.SIGTERM, _raise_terminated) if in_main_thread else None
     try:
-        return int(args.func(args) or 0)
+        with _log_above_progress_bars():
+            return int(args.func(args) or 0)
+    except Terminated:
+        print("terminated", file=sys.stderr)
+        return 128 + signal.SIGTERM
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:  # stdout closed early (`nuav2 ... | head`): stop quietly, as Unix tools do
+        with contextlib.suppress(OSError):
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 128 + signal.SIGPIPE
     except Exception as e:  # noqa: BLE001 - the one place errors become a message and an exit code
         if args.verbose:
             traceback.print_exc()
         print(f"nuav2 {args.command}: {describe_error(e)}", file=sys.stderr)
         return EXIT_BAD_INPUT
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
 
 
 if __name__ == "__main__":

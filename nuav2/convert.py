@@ -12,6 +12,7 @@ import contextlib
 import hashlib
 import json
 import logging
+import math
 import os
 import tempfile
 import traceback
@@ -24,7 +25,7 @@ from nuav2.executors import EXECUTORS
 from nuav2.image_sources import MODES, image_source_for, write_quality_table
 from nuav2.nuscenes_db import shards as sh
 from nuav2.nuscenes_db.images import IMAGE_LINKS, NativeImages
-from nuav2.nuscenes_db.merge import merge_shards
+from nuav2.nuscenes_db.merge import LOGS_FILE, merge_shards
 from nuav2.nuscenes_db.scene_names import SceneNameError
 from nuav2.nuscenes_db.scene_names import scene_names_for as _scene_names
 from nuav2.nuscenes_db.writer import WRITER_FORMAT, WriterOptions, write_log
@@ -33,6 +34,9 @@ from nuav2.rig import RigSpecError, load_rig
 log = logging.getLogger(__name__)
 
 REPORT_FILE = "convert_report.json"
+
+
+MIN_IMAGE_SIDE_PX = 8  # a smaller target image holds nothing a mapping model could use
 
 
 class ConvertError(ValueError):
@@ -69,8 +73,8 @@ class ConvertOptions:
             raise ConvertError(f"--mode must be one of {MODES}, got {self.mode!r}")
         if self.image_link not in IMAGE_LINKS:
             raise ConvertError(f"--image-link must be one of {IMAGE_LINKS}, got {self.image_link!r}")
-        if self.keyframe_hz is not None and not self.keyframe_hz > 0:
-            raise ConvertError(f"--keyframe-hz must be > 0 Hz, got {self.keyframe_hz}")
+        if self.keyframe_hz is not None and not 0 < self.keyframe_hz < math.inf:
+            raise ConvertError(f"--keyframe-hz must be a finite number > 0 Hz, got {self.keyframe_hz}")
         if self.workers < 1:
             raise ConvertError(f"--workers must be >= 1, got {self.workers}")
         self._check_executor()
@@ -87,12 +91,16 @@ class ConvertOptions:
                 raise ConvertError(f"--recon-preset: {e}") from e
             self._check_device()
         if self.mode != "native":
-            if not self.scale > 0:
-                raise ConvertError(f"--scale must be > 0, got {self.scale}")
+            if not 0 < self.scale < math.inf:
+                raise ConvertError(f"--scale must be a finite number > 0, got {self.scale}")
             try:
-                load_rig(self.rig)
+                rig = load_rig(self.rig, scale=self.scale)
             except RigSpecError as e:
                 raise ConvertError(f"--rig: {e}") from e
+            small = [c.channel for c in rig.cameras if min(c.width, c.height) < MIN_IMAGE_SIDE_PX]
+            if small:
+                raise ConvertError(f"--scale {self.scale:g} makes {', '.join(small)} smaller than "
+                                   f"{MIN_IMAGE_SIDE_PX} px on a side")
 
     def _check_executor(self) -> None:
         if self.executor not in EXECUTORS:
@@ -106,8 +114,8 @@ class ConvertOptions:
         for flag, value in (("--cpus-per-task", self.cpus_per_task), ("--gpus-per-task", self.gpus_per_task),
                             ("--memory-per-task", self.memory_per_task_gb),
                             ("--max-retries", self.max_retries)):
-            if value is not None and not value >= 0:
-                raise ConvertError(f"{flag} must be >= 0, got {value}")
+            if value is not None and not 0 <= value < math.inf:
+                raise ConvertError(f"{flag} must be a finite number >= 0, got {value}")
         if self.cpus_per_task is not None and self.cpus_per_task == 0:
             raise ConvertError("--cpus-per-task must be > 0")
         if self.executor == "ray":
@@ -202,6 +210,14 @@ def prepare_output_dir(out: Path) -> None:
         raise ConvertError(f"{out}: {what} the output directory ({e.strerror or e})") from None
 
 
+def refuse_foreign_tables(folder: Path) -> None:
+    """The merge replaces OUT/<version> whole: refuse where that folder holds files nuav2 did not
+    write (no ``nuav2_logs.json``), e.g. a real nuScenes ``v1.0-trainval`` beside the new data."""
+    if folder.is_dir() and not (folder / LOGS_FILE).is_file() and any(folder.iterdir()):
+        raise ConvertError(f"{folder} holds files that nuav2 did not write (it has no {LOGS_FILE}); "
+                           f"converting would replace that folder: use another --version or OUT")
+
+
 def earlier_shards(out: Path, version: str, fingerprint: str, this_run: set[str]) -> dict[str, Path]:
     """Complete shards in OUT of logs outside this run (an earlier run on another split), to merge too.
 
@@ -286,6 +302,7 @@ def convert_av2(src: Path, out: Path, options: ConvertOptions | None = None) -> 
     options.check()
     out = Path(out)
     logs = find_logs(Path(src))  # a bad SRC fails here, before OUT is created
+    refuse_foreign_tables(out / options.version)
     created = not out.exists()
     prepare_output_dir(out)
     fingerprint = options.fingerprint()
@@ -312,12 +329,14 @@ def convert_av2(src: Path, out: Path, options: ConvertOptions | None = None) -> 
             with contextlib.suppress(OSError):
                 out.rmdir()  # only when still empty
         raise
+    finally:  # failed, interrupted and replaced logs leave their data folders empty
+        prune_empty_dirs(out, DATA_DIRS)
     report.logs = {r["log_id"]: r.pop("summary") for r in results}
     for r in results:
         if r["error"] is None:
             report.converted.append(r["log_id"])
-        else:
-            log.error("log %s failed: %s", r["log_dir"], r["error"])
+        else:  # the CLI lists failures at the end; the progress line counts them meanwhile
+            log.debug("log %s failed: %s", r["log_dir"], r["error"])
             report.failed.append(r)
 
     done = {x: sh.shard_dir(out, options.version, x) for x in report.converted + report.resumed}
@@ -336,8 +355,25 @@ def convert_av2(src: Path, out: Path, options: ConvertOptions | None = None) -> 
     if not _write_report(out, report):
         raise ConvertError(f"{out / REPORT_FILE}: cannot write the conversion report")
     if not done:
-        raise ConvertError(f"no log converted ({len(report.failed)} failed); see {out / REPORT_FILE}")
+        first = report.failed[0] if report.failed else None
+        why = f"{first['log_dir']}: {first['error']}" if first else "no log to convert"
+        many = f" ({len(report.failed)} failed; the first:" if len(report.failed) > 1 else ""
+        raise ConvertError(f"no log converted{many}: {why}{')' if many else ''}; see {out / REPORT_FILE}")
     return report
+
+
+DATA_DIRS = ("samples", "sweeps")
+
+
+def prune_empty_dirs(out: Path, names: tuple[str, ...]) -> None:
+    """Remove empty folders under ``out/<name>`` (and the folder itself when it ends up empty)."""
+    for name in names:
+        top = Path(out) / name
+        if not top.is_dir():
+            continue
+        for folder, _, _ in sorted(os.walk(top), key=lambda w: -len(w[0])):
+            with contextlib.suppress(OSError):
+                os.rmdir(folder)  # fails, as wanted, where files remain
 
 
 def _write_report(out: Path, report: ConvertReport) -> bool:

@@ -10,11 +10,16 @@ PNG (source AV2 views | rendered target views | ground truth).
 from __future__ import annotations
 
 import json
+import shutil
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
+
+if TYPE_CHECKING:
+    from nuav2.convert import ConvertOptions
 
 
 @dataclass(frozen=True)
@@ -29,6 +34,68 @@ class DemoOptions:
     version: str = "v1.0-nuav2-demo"
     seconds: float = 2.0
     progress: bool = True
+
+
+OPTIONS_FILE = "demo_options.json"  # in OUT/<preset>/: the options its log and database were made with
+OWNED = ("av2", "nuscenes", "demo_side_by_side.png")  # what the demo writes in OUT/<preset>/ (and replaces)
+
+
+def _convert_options(options: DemoOptions) -> ConvertOptions:
+    """The conversion's options (``nuav2.convert.ConvertOptions``), checked: a bad rig, scale or
+    reconstruction preset is one line naming the flag."""
+    from nuav2.convert import ConvertOptions
+
+    convert = ConvertOptions(mode=options.mode, version=options.version, rig=options.rig,
+                             scale=options.scale, recon_preset=options.recon_preset,
+                             show_progress=options.progress)
+    convert.check()
+    return convert
+
+
+def check_options(options: DemoOptions) -> None:
+    """Refuse bad options before any work: the target rig (loaded as ``convert`` loads it, in every mode),
+    scale, reconstruction preset, the presets and the log length."""
+    from nuav2.bench.cli_args import check_rig
+    from nuav2.synth import SynthConfig
+
+    check_rig(options.rig)
+    _convert_options(options)
+    if not options.presets:
+        raise ValueError("--preset: no preset given")
+    for preset in options.presets:
+        SynthConfig.for_preset(preset, seconds=options.seconds)
+
+
+def _options_record(options: DemoOptions, preset: str) -> dict:
+    """What OUT/<preset>/'s log and database depend on: the log's preset, seed and length, the database's
+    version and mode, and the target rig and reconstruction preset where the mode uses them."""
+    converted = options.mode != "native"
+    return {"preset": preset, "seed": options.seed, "seconds": options.seconds, "version": options.version,
+            "mode": options.mode, "rig": options.rig if converted else None,
+            "scale": options.scale if converted else None,
+            "recon_preset": options.recon_preset if options.mode == "render" else None}
+
+
+def prepare_preset_dir(options: DemoOptions, preset: str, out: Path) -> None:
+    """Make OUT/<preset>/ hold this run's options: if an earlier run there used other ones (or left no
+    record), remove its synthetic log, database and picture, so the new database holds this run's log
+    alone (with the same options, the converted log is reused)."""
+    from nuav2.atomic import atomic_write_json
+
+    record = _options_record(options, preset)
+    try:
+        previous = json.loads((out / OPTIONS_FILE).read_text())
+    except (OSError, ValueError):
+        previous = None
+    if previous != record:
+        for name in OWNED:
+            path = out / name
+            if path.is_dir() and not path.is_symlink():
+                shutil.rmtree(path)
+            elif path.exists() or path.is_symlink():
+                path.unlink()
+    out.mkdir(parents=True, exist_ok=True)
+    atomic_write_json(out / OPTIONS_FILE, record, indent=1)
 
 
 def _tile_row(images: list[np.ndarray], height: int, label: str) -> np.ndarray:
@@ -63,6 +130,7 @@ def run_demo(options: DemoOptions) -> dict:
     from nuav2.bench.cli_args import command_line
     from nuav2.bench.timing import machine
 
+    check_options(options)  # before any work: a bad option leaves nothing behind
     start = machine()
     per_preset = {p: _run_preset(options, p, Path(options.out) / p) for p in options.presets}
     summary = {"command": command_line(), "mode": options.mode, "rig": options.rig, "scale": options.scale,
@@ -78,22 +146,21 @@ def _run_preset(options: DemoOptions, preset: str, out: Path) -> dict:
     """synth -> convert -> validate + devkit -> score per region -> side-by-side PNG, for one preset."""
     from converters.av2 import read_log
     from nuav2.bench.timing import Stopwatch
-    from nuav2.convert import ConvertOptions, convert_av2
+    from nuav2.convert import convert_av2
     from nuav2.evaluate.against_world import key_camera_images, log_offsets, score_against_world
     from nuav2.maptr.dataset import load_image_rgb
     from nuav2.nuscenes_db.validate import validate_database
     from nuav2.synth import SynthConfig, generate_log, load_world, render_view
 
     clocks = {k: Stopwatch() for k in ("synth", "convert", "validate", "score")}
+    prepare_preset_dir(options, preset, out)
     with clocks["synth"]:
         config = SynthConfig.for_preset(preset, seconds=options.seconds)
         log_dir = generate_log(out / "av2", seed=options.seed, config=config, progress=options.progress)
 
     dataroot = out / "nuscenes"
     with clocks["convert"]:
-        report = convert_av2(log_dir, dataroot, ConvertOptions(
-            mode=options.mode, version=options.version, rig=options.rig, scale=options.scale,
-            recon_preset=options.recon_preset, show_progress=options.progress))
+        report = convert_av2(log_dir, dataroot, _convert_options(options))
     if report.failed:
         raise RuntimeError(f"demo conversion failed: {report.failed}")
 
@@ -131,7 +198,7 @@ def _run_preset(options: DemoOptions, preset: str, out: Path) -> dict:
         "log_dir": str(log_dir), "dataroot": str(dataroot), "version": options.version,
         "samples": len(nusc.sample), "sample_data": len(nusc.sample_data),
         "annotations": len(nusc.sample_annotation), "validation": "ok",
-        "converted_logs": len(report.converted),
+        "converted_logs": len(report.converted), "reused_logs": len(report.resumed),
         "quality": quality,
         "timings": {k: {"wall_s": round(c.wall_s[0], 2), "cpu_s": round(c.cpu_s[0], 2),
                         "load_1min_after": round(c.load[0], 2)} for k, c in clocks.items()},

@@ -101,9 +101,14 @@ def test_options_that_change_shards_change_the_fingerprint(tmp_path: Path):
 
 @pytest.mark.parametrize("argv, message", [
     (["--keyframe-hz", "0"], "--keyframe-hz"),
+    (["--keyframe-hz", "inf"], "--keyframe-hz"),
     (["--workers", "0"], "--workers"),
     (["--version", "../x"], "--version"),
+    (["--mode", "warp", "--scale", "inf"], "--scale must be a finite number"),
+    (["--mode", "warp", "--scale", "1e-9"], "smaller than 8 px"),
 ])
 def test_bad_arguments_are_clear_errors(av2_fixture_log: Path, tmp_path: Path, capsys, argv, message):
     assert main(["convert", "av2", str(av2_fixture_log), str(tmp_path / "o"), "--no-progress", *argv]) == 2
-    assert message in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert message in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "o").exists()

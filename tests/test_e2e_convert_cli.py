@@ -81,6 +81,20 @@ def test_a_nuscenes_version_name_warns_that_its_devkit_splits_select_none_of_the
     assert not [r for r in caplog.records if "splits of that version" in r.getMessage()]
 
 
+def test_a_version_folder_nuav2_did_not_write_is_never_replaced(synth_log: Path, tmp_path: Path):
+    """Converting into a real nuScenes dataroot with its own --version replaced its tables whole."""
+    out = tmp_path / "nuscenes"
+    theirs = out / "v1.0-trainval"
+    theirs.mkdir(parents=True)
+    (theirs / "scene.json").write_text('[{"token": "a", "name": "scene-0001"}]')
+    (theirs / "their_notes.json").write_text("{}")
+    code, _, err = cli("convert", "av2", synth_log.parent, out, "--version", "v1.0-trainval", "--no-progress")
+    assert code == 2 and len(err.strip().splitlines()) == 1
+    assert str(theirs) in err and "nuav2_logs.json" in err and "--version" in err
+    assert sorted(p.name for p in out.iterdir()) == ["v1.0-trainval"]  # nothing else written
+    assert sorted(p.name for p in theirs.iterdir()) == ["scene.json", "their_notes.json"]
+
+
 # ------------------------------------------------------------------ finding 7: file modes
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import os
@@ -62,6 +63,38 @@ def test_workers_exit_when_the_main_process_is_killed(synth_split: Path, tmp_pat
                 if _alive(pid):
                     os.kill(pid, signal.SIGKILL)
     assert not (tmp_path / "out" / VERSION).exists()
+
+
+def _start_hanging_conversion(synth_split: Path, tmp_path: Path) -> tuple[subprocess.Popen, list[int]]:
+    """``convert --workers 2`` in its own process group, both workers parked at the start of a log."""
+    hook = tmp_path / "hook"
+    hook.mkdir()
+    env = {**os.environ, FAULT_ENV: f"hang:{hook}", "PYTHONPATH": str(REPO)}
+    main = subprocess.Popen([sys.executable, "-m", "nuav2", "convert", "av2", str(synth_split),
+                             str(tmp_path / "out"), "--workers", "2", "--no-progress"],
+                            env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)
+    assert _wait_for(lambda: len(list(hook.glob("*.attempts"))) == 2, 120), "workers never started"
+    return main, [int(p.read_text().split()[0]) for p in hook.glob("*.attempts")]
+
+
+def test_ctrl_c_and_sigterm_stop_a_pool_conversion_and_its_workers(synth_split: Path, tmp_path: Path):
+    """Ctrl-C reaches the whole process group: a worker interrupted while idle or holding the pool's
+    queue lock hung the pool's shutdown for good (and the third log started after the interrupt).
+    ``kill`` (SIGTERM) reaches the main process only; it stops the same way, cleanup included."""
+    for name, send, code, said in (("int", lambda m: os.killpg(m.pid, signal.SIGINT), 130, "interrupted"),
+                                   ("term", lambda m: m.send_signal(signal.SIGTERM), 143, "terminated")):
+        (tmp_path / name).mkdir()
+        main, workers = _start_hanging_conversion(synth_split, tmp_path / name)
+        try:
+            send(main)
+            _, err = main.communicate(timeout=60)
+            assert main.returncode == code and err.strip().splitlines()[-1] == said, (name, err)
+            assert _wait_for(lambda w=workers: not any(_alive(pid) for pid in w), 15), name
+        finally:
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(main.pid, signal.SIGKILL)
+        assert not (tmp_path / name / "out" / VERSION).exists()
 
 
 def test_a_killed_worker_is_retried_and_the_tables_stay_identical(

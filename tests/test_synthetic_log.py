@@ -197,6 +197,8 @@ def test_cli_synth_writes_log_and_reports_timing(tmp_path, capsys):
     loader = AV2SensorDataLoader(data_dir=log_dir.parent, labels_dir=log_dir.parent)
     ts = loader.get_ordered_log_lidar_timestamps(log_dir.name)[1]
     assert loader.get_closest_img_fpath(log_dir.name, "stereo_front_right", ts) is not None
-    assert cli_main(["synth", str(tmp_path), "--scale", "0"]) == 2
-    assert "image_scale" in capsys.readouterr().err
-    assert cli_main(["synth", str(tmp_path), "--seed", "-3"]) == 2
+    with pytest.raises(SystemExit):
+        cli_main(["synth", str(tmp_path), "--scale", "0"])
+    assert "argument --scale" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        cli_main(["synth", str(tmp_path), "--seed", "-3"])

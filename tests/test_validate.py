@@ -217,7 +217,7 @@ BROKEN: list[tuple[str, Callable[[Path], None], str, str]] = [
      "calibrated_sensor", "focal lengths must be positive, got fx=-5.0"),
     ("bad_modality", _edit("sensor", lambda r: _set(r, 0, modality="sonar")), "sensor",
      "modality: 'sonar' is not one of"),
-    ("lidar_size", _truncate_lidar, "sample_data", "is not a positive multiple of 20"),
+    ("lidar_size", _truncate_lidar, "sample_data", "is not a multiple of 20"),
     ("log_not_in_map", _edit("map", _drop_map_log), "log", "log is in no map record's log_tokens"),
     ("missing_map_png", _remove("maps/*.png"), "map", "map mask not readable"),
     ("nbr_samples", _edit("scene", lambda r: _set(r, 0, nbr_samples=4)), "scene",

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 from converters.av2.errors import AV2LogError
@@ -16,9 +17,17 @@ def is_log_dir(path: Path) -> bool:
 
 def _logs_in(split_dir: Path) -> list[Path]:
     """Log dirs in ``split_dir``; hidden ones are skipped (an interrupted atomic write leaves a
-    ``.<log id>.<tmp>.partial`` dir that may already hold the pose file)."""
+    ``.<log id>.<tmp>.partial`` dir that may already hold the pose file). A dir that cannot be
+    looked into is kept: its conversion fails and is reported, and the other logs still convert."""
     return sorted(p for p in split_dir.iterdir()
-                  if p.is_dir() and not p.name.startswith(".") and is_log_dir(p))
+                  if p.is_dir() and not p.name.startswith(".") and _maybe_log_dir(p))
+
+
+def _maybe_log_dir(path: Path) -> bool:
+    try:
+        return is_log_dir(path)
+    except PermissionError:
+        return True
 
 
 def find_logs(src: Path) -> list[Path]:
@@ -27,7 +36,7 @@ def find_logs(src: Path) -> list[Path]:
     ``src`` may be one log, a split dir holding logs, a ``sensor/`` dir holding train/val/test,
     or the dataset root holding ``sensor/``.
     """
-    src = Path(src)
+    src = Path(os.path.abspath(src))  # `.` / `..` name no log; the report names absolute paths
     if not src.is_dir():
         raise AV2LogError(src, "not a directory")
     if is_log_dir(src):

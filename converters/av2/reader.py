@@ -9,6 +9,7 @@ Every problem with the input is an :class:`AV2LogError` naming the file, or a lo
 from __future__ import annotations
 
 import logging
+import os
 from pathlib import Path
 
 import numpy as np
@@ -54,7 +55,7 @@ def read_log(log_dir: Path, calibration_dir: Path | None = None, *, require_came
     ``camera_tolerance_ns``; sweeps that are not synced stay in ``lidar_sweeps`` (reconstruction
     uses them) and :func:`synced_sweeps` leaves them out of the samples.
     """
-    log_dir = Path(log_dir)
+    log_dir = Path(os.path.abspath(log_dir))  # `.` and `..` have no name to take the log id from
     if not log_dir.is_dir():
         raise AV2LogError(log_dir, "log directory not found")
     calib_dir = Path(calibration_dir) if calibration_dir is not None else log_dir / "calibration"

@@ -6,7 +6,15 @@ import argparse
 import json
 from pathlib import Path
 
+from nuav2.bench.cli_args import synth_image_scale, synth_seconds
 from nuav2.cli import group
+from nuav2.cli_types import non_negative_float, positive_float
+
+
+def _speed_seconds(text: str) -> float:
+    """``--speed-seconds``: 0 (skip the measurement) or a synthetic log length (> 0.05 s)."""
+    value = non_negative_float(text)
+    return value if value == 0 else synth_seconds(text)
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -18,20 +26,21 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "scores the written images against the world's exact renders: PSNR / SSIM over the whole "
                     "image and the ground, lane-paint offset, seconds; plus the synthetic world's speed per "
                     "preset (see docs/realism.md).")
-    p.add_argument("--seeds", default="0,1", help="world seeds, comma-separated")
+    p.add_argument("--seeds", default="0,1", help="world seeds (each >= 0), comma-separated")
     p.add_argument("--factors", default="all",
                    help="factors to add one at a time (default: all; exposure_gains = exposure's gains "
                         "without its sensor noise)")
     p.add_argument("--presets", default="medium,hard", help="whole presets to run too ('' for none)")
-    p.add_argument("--seconds", type=float, default=2.0, help="log length in seconds")
-    p.add_argument("--image-scale", type=float, default=0.125, help="AV2 camera resolution of the logs")
+    p.add_argument("--seconds", type=synth_seconds, default=2.0, help="log length in seconds, > 0.05")
+    p.add_argument("--image-scale", type=synth_image_scale, default=0.125,
+                   help="AV2 camera resolution of the logs, > 0")
     p.add_argument("--rig", default="nuscenes", help="target rig name or JSON path")
-    p.add_argument("--scale", type=float, default=0.125, help="target rig resolution factor")
+    p.add_argument("--scale", type=positive_float, default=0.125, help="target rig resolution factor, > 0")
     p.add_argument("--recon-preset", choices=["default", "fast"], default="fast",
                    help="reconstruction settings for render mode (default: the fastest)")
     p.add_argument("--modes", default="warp,render", help="conversion modes to score")
-    p.add_argument("--speed-seconds", type=float, default=2.0,
-                   help="log length of the synth speed measurement per preset (0: skip)")
+    p.add_argument("--speed-seconds", type=_speed_seconds, default=2.0,
+                   help="log length of the synth speed measurement per preset, > 0.05 (0: skip)")
     p.add_argument("--pictures", type=Path, default=None,
                    help="write realism_<preset>.png (source | truth | warp | render) into this directory")
     p.add_argument("--work-dir", type=Path, default=None, help="keep the logs and databases here")
@@ -51,7 +60,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from nuav2.atomic import atomic_write_bytes, atomic_write_json
     from nuav2.bench.ablation import ABLATION_FACTORS, AblationOptions, bench_ablation, markdown_table
-    from nuav2.bench.cli_args import command_line, parse_ints
+    from nuav2.bench.cli_args import check_rig, command_line, parse_ints
     from nuav2.cli import UsageError
     from nuav2.synth import PRESETS
 
@@ -87,6 +96,7 @@ def run(args: argparse.Namespace) -> int:
             bad = [x for x in got if x not in known]
             if bad:
                 raise UsageError(f"{flag}: unknown {', '.join(bad)}; known: {', '.join(known)}")
+        check_rig(args.rig)
         opts = AblationOptions(seeds=seeds, factors=factors, presets=presets, seconds=args.seconds,
                                image_scale=args.image_scale, rig=args.rig, scale=args.scale,
                                recon_preset=args.recon_preset, modes=modes, speed_seconds=args.speed_seconds,

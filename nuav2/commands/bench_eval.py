@@ -16,14 +16,16 @@ def _run(args: argparse.Namespace) -> int:
 
 def register(subparsers) -> None:
     from nuav2.cli import group
+    from nuav2.cli_types import non_negative_int, positive_int
 
     p = group("bench", "benchmarks").add_parser(
         "eval", help="chamfer-AP evaluation speed vs the per-sample reference (synthetic MapTR-like data)"
     )
     p.add_argument(
-        "--samples", type=int, default=6000, help="synthetic samples (default 6000, a full val set)"
+        "--samples", type=positive_int, default=6000,
+        help="synthetic samples, >= 1 (default 6000, a full val set)"
     )
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=non_negative_int, default=0, help="data seed, >= 0 (default 0)")
     p.add_argument("--skip-reference", action="store_true", help="time only the vectorised evaluator")
     p.add_argument("--json", action="store_true", help="one JSON line instead of indented JSON")
     p.set_defaults(func=_run)

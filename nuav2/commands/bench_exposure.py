@@ -6,7 +6,9 @@ import argparse
 import json
 from pathlib import Path
 
+from nuav2.bench.cli_args import synth_seconds
 from nuav2.cli import group
+from nuav2.cli_types import non_negative_int, positive_int
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -18,9 +20,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "per-point observation cap, and scores each against the world's clean renders of a "
                     "sample of source images (see docs/reconstruction.md).")
     p.add_argument("--preset", default="hard", help="realism preset with exposure effects (default: hard)")
-    p.add_argument("--seconds", type=float, default=15.0, help="log length in seconds (default: 15)")
-    p.add_argument("--seed", type=int, default=0, help="world seed")
-    p.add_argument("--sample", type=int, default=120, help="source images scored (default: 120)")
+    p.add_argument("--seconds", type=synth_seconds, default=15.0,
+                   help="log length in seconds, > 0.05 (default: 15)")
+    p.add_argument("--seed", type=non_negative_int, default=0, help="world seed, >= 0")
+    p.add_argument("--sample", type=positive_int, default=120,
+                   help="source images scored, >= 1 (default: 120)")
     p.add_argument("--work-dir", type=Path, default=None,
                    help="keep the log here (a later run with the same settings reuses it)")
     p.add_argument("--out", type=Path, default=None, help="also write the JSON here")
@@ -38,8 +42,6 @@ def run(args: argparse.Namespace) -> int:
 
     if args.preset not in PRESETS:
         raise UsageError(f"--preset {args.preset!r}: must be one of {', '.join(PRESETS)}")
-    if args.seconds <= 0 or args.sample < 1:
-        raise UsageError("--seconds must be > 0 and --sample >= 1")
     try:
         result = bench_exposure(args.preset, args.seconds, args.seed, args.sample, args.work_dir)
     except ValueError as e:

@@ -6,7 +6,9 @@ import argparse
 import json
 from pathlib import Path
 
+from nuav2.bench.cli_args import synth_image_scale, synth_seconds
 from nuav2.cli import group
+from nuav2.cli_types import positive_float, positive_int
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -26,19 +28,20 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--version", default="v1.0-nuav2", help="table folder under DATAROOT")
     p.add_argument("--split", default=None, help="split to read (default: the first in splits.json)")
-    p.add_argument("--samples", type=int, default=50, help="keyframes to time")
-    p.add_argument("--image-scale", type=float, default=1.0, help="resize images by this factor")
+    p.add_argument("--samples", type=positive_int, default=50, help="keyframes to time, >= 1")
+    p.add_argument("--image-scale", type=positive_float, default=1.0,
+                   help="resize images by this factor, > 0")
     p.add_argument(
         "--synthetic-seconds",
-        type=float,
+        type=synth_seconds,
         default=2.0,
-        help="length of the synthetic log when no DATAROOT is given",
+        help="length of the synthetic log when no DATAROOT is given, > 0.05",
     )
     p.add_argument(
         "--synthetic-image-scale",
-        type=float,
+        type=synth_image_scale,
         default=0.125,
-        help="AV2 camera resolution factor of the synthetic log",
+        help="AV2 camera resolution factor of the synthetic log, > 0",
     )
     p.add_argument("--json", action="store_true", help="print JSON only (the default output is JSON too)")
     p.set_defaults(func=run)

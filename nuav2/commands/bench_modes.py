@@ -6,7 +6,9 @@ import argparse
 import json
 from pathlib import Path
 
+from nuav2.bench.cli_args import synth_image_scale
 from nuav2.cli import group
+from nuav2.cli_types import positive_float, positive_int
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -18,14 +20,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "them against the synthetic world's exact images per region (see docs/modes.md).",
     )
     p.add_argument("--preset", default="easy", help="synthetic realism preset(s): easy,medium,hard or all")
-    p.add_argument("--seconds", default="2", help="log length(s) in seconds, comma-separated (e.g. 2,15)")
+    p.add_argument("--seconds", default="2",
+                   help="log length(s) in seconds, each > 0.05, comma-separated (e.g. 2,15)")
     p.add_argument("--seeds", "--seed", dest="seeds", default="0",
-                   help="synthetic scene seed(s), comma-separated (tables give mean ± std over them)")
-    p.add_argument("--image-scale", type=float, default=None,
-                   help="AV2 camera resolution factor of the synthetic log (default: the preset's, 1/8)")
+                   help="synthetic scene seed(s), each >= 0, comma-separated (tables: mean ± std over them)")
+    p.add_argument("--image-scale", type=synth_image_scale, default=None,
+                   help="AV2 camera resolution factor of the synthetic log, > 0 (default: the preset's, 1/8)")
     p.add_argument("--rig", default="nuscenes", help="target rig name or JSON path")
-    p.add_argument("--scale", type=float, default=0.16, help="target rig resolution factor")
-    p.add_argument("--frame-step", type=int, default=1, help="use every k-th sweep as a frame")
+    p.add_argument("--scale", type=positive_float, default=0.16, help="target rig resolution factor, > 0")
+    p.add_argument("--frame-step", type=positive_int, default=1, help="use every k-th sweep as a frame, >= 1")
     p.add_argument("--no-render", action="store_true", help="skip the Gaussian-splat render mode")
     p.add_argument("--recon-preset", choices=["default", "fast"], default="fast",
                    help="reconstruction settings for render mode")
@@ -40,12 +43,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from nuav2.atomic import atomic_write_json
-    from nuav2.bench.cli_args import command_line, parse_floats, parse_ints, parse_presets
+    from nuav2.bench.cli_args import check_rig, command_line, parse_floats, parse_ints, parse_presets
+    from nuav2.bench.cli_args import synth_seconds as seconds_type
     from nuav2.bench.modes import bench_modes
 
-    presets = parse_presets(args.preset)  # a bad value: one line from nuav2.cli
-    seconds = parse_floats(args.seconds, "--seconds")
+    presets = parse_presets(args.preset)  # a bad value: one line from nuav2.cli, before any work
+    seconds = parse_floats(args.seconds, "--seconds", seconds_type)
     seeds = parse_ints(args.seeds, "--seeds")
+    check_rig(args.rig)
     result = bench_modes(presets, seconds, seeds, command=command_line(),
                          image_scale=args.image_scale, rig_name=args.rig, scale=args.scale,
                          frame_step=args.frame_step, with_render=not args.no_render,

@@ -5,7 +5,8 @@ from __future__ import annotations
 import argparse
 import json
 
-from nuav2.cli import group
+from nuav2.cli import UsageError, group
+from nuav2.cli_types import non_negative_int, positive_int
 
 
 def _size(text: str) -> tuple[int, int]:
@@ -37,10 +38,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--sizes", type=_size, nargs="+", default=None, metavar="WxH",
                    help="image sizes, each paired with every --counts (default 480x270/100k, 960x540/100k, "
                    "1600x900/300k)")
-    p.add_argument("--counts", type=int, nargs="+", default=None, metavar="N", help="Gaussian counts")
-    p.add_argument("--repeats", type=int, default=5, help="interleaved rounds per case (min and median)")
+    p.add_argument("--counts", type=positive_int, nargs="+", default=None, metavar="N",
+                   help="Gaussian counts, each >= 1")
+    p.add_argument("--repeats", type=positive_int, default=5,
+                   help="interleaved rounds per case, >= 1 (min and median)")
     p.add_argument("--no-gsplat", action="store_true", help="skip gsplat's PyTorch reference")
-    p.add_argument("--gsplat-max-contributions", type=int, default=None, metavar="N",
+    p.add_argument("--gsplat-max-contributions", type=non_negative_int, default=None, metavar="N",
                    help="skip gsplat's reference on cases with more Gaussian-pixel contributions than this "
                    "(it holds them all in memory, about 200 B each; default 20,000,000)")
     p.add_argument("--json", action="store_true", help="compact one-line JSON (default: indented)")
@@ -50,22 +53,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from nuav2.bench.raster import GSPLAT_MAX_CONTRIBUTIONS, default_cases, run_raster_bench
 
-    if args.repeats < 1:
-        raise SystemExit("--repeats must be >= 1")
     scenes = args.scenes or sorted(SCENES)
     if args.sizes or args.counts:
         if not (args.sizes and args.counts):
-            raise SystemExit("--sizes and --counts go together")
-        if any(n < 0 for n in args.counts):
-            raise SystemExit("--counts must be >= 0")
+            raise UsageError("--sizes and --counts go together: give both or neither")
         cases = [(s, w, h, n) for s in scenes for w, h in args.sizes for n in args.counts]
     else:
         cases = default_cases(args.quick, scenes)
     budget = args.gsplat_max_contributions
     if budget is None:
         budget = GSPLAT_MAX_CONTRIBUTIONS
-    if budget < 0:
-        raise SystemExit("--gsplat-max-contributions must be >= 0")
     result = run_raster_bench(cases, repeats=args.repeats, reference=not args.no_gsplat,
                               max_contributions=budget)
     print(json.dumps(result, indent=None if args.json else 1))

@@ -7,6 +7,7 @@ import json
 from pathlib import Path
 
 from nuav2.cli import UsageError, group
+from nuav2.cli_types import number, positive_int
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -21,14 +22,17 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "presets were tuned on apart.")
     p.add_argument("log_dir", type=Path, nargs="?", default=None, help="a synthetic log directory")
     p.add_argument("--preset", default="easy", help="synthetic realism preset(s): easy,medium,hard or all")
-    p.add_argument("--seeds", default="0", help="synthetic world seeds when generating, comma-separated")
+    p.add_argument("--seeds", default="0",
+                   help="synthetic world seeds (each >= 0) when generating, comma-separated")
     p.add_argument("--scene", default=None,
                    help="scene variants on top of the preset, comma-separated: empty (a straight road, "
                         "no traffic), busy (the four-way junction, twice the traffic); default: the preset's")
     p.add_argument("--budgets", default=None,
                    help="comma-separated budget names (default: all of them)")
-    p.add_argument("--holdout-every", type=int, default=5, help="hold out every k-th source image per camera")
-    p.add_argument("--times", type=int, default=6, help="sample times scored in the target rig")
+    p.add_argument("--holdout-every", type=number(int, lo=2), default=5,
+                   help="hold out every k-th source image per camera, >= 2 (1 would hold out all)")
+    p.add_argument("--times", type=positive_int, default=6,
+                   help="sample times scored in the target rig, >= 1")
     p.add_argument("--out", type=Path, default=None, help="also write the JSON here")
     p.add_argument("--markdown", type=Path, default=None,
                    help="also write the docs' markdown tables (with how they were measured) here")

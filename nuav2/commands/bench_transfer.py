@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 
 from nuav2.cli import UsageError, group
+from nuav2.cli_types import non_negative_int, positive_int
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -32,17 +33,20 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--smoke", action="store_true", help="plumbing check: two tiny worlds, a few steps (CI)"
     )
     p.add_argument("--preset", default=None, help="synthetic realism preset (default: medium)")
-    p.add_argument("--seeds", type=int, nargs="+", default=None, help="training seeds (default: 0 1)")
-    p.add_argument("--steps", type=int, default=None, help="training steps per Table 1 run")
-    p.add_argument("--finetune-steps", type=int, default=None, help="training steps per Table 2 run")
-    p.add_argument("--train-worlds", type=int, default=None)
-    p.add_argument("--test-worlds", type=int, default=None)
-    p.add_argument("--recon-preset", default=None, help="render mode's reconstruction preset (default: fast)")
+    p.add_argument("--seeds", type=non_negative_int, nargs="+", default=None,
+                   help="training seeds, each >= 0 (default: 0 1)")
+    p.add_argument("--steps", type=positive_int, default=None, help="training steps per Table 1 run, >= 1")
+    p.add_argument("--finetune-steps", type=positive_int, default=None,
+                   help="training steps per Table 2 run, >= 1")
+    p.add_argument("--train-worlds", type=positive_int, default=None, help="training worlds, >= 1")
+    p.add_argument("--test-worlds", type=positive_int, default=None, help="test worlds, >= 1")
+    p.add_argument("--recon-preset", choices=["default", "fast"], default=None,
+                   help="render mode's reconstruction preset (default: fast)")
     p.add_argument(
         "--workers",
-        type=int,
+        type=positive_int,
         default=None,
-        help="training runs at once, each in its own process with one torch thread (default: 2)",
+        help="training runs at once, >= 1, each in its own process with one torch thread (default: 2)",
     )
     p.add_argument("--no-figures", action="store_true", help="skip curves.png and the viz pictures")
     p.add_argument("--json", action="store_true", help="print the result JSON instead of the tables")

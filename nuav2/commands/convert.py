@@ -55,7 +55,7 @@ def _run(args: argparse.Namespace) -> int:
                "resumed": len(report.resumed), "merged_earlier": len(report.merged_earlier),
                "failed": len(report.failed),
                "samples": report.table_counts.get("sample", 0), "report": str(Path(args.out) / REPORT_FILE)}
-    print(json.dumps(summary))
+    print(json.dumps(summary, ensure_ascii=False))
     for f in report.failed:
         print(f"failed: {f['log_dir']}: {f['error']}", file=sys.stderr)
     return 1 if report.failed else 0

@@ -44,6 +44,8 @@ def run(args: argparse.Namespace) -> int:
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
+    from nuav2.bench.cli_args import lidar_azimuth_steps, synth_image_scale, synth_seconds
+    from nuav2.cli_types import non_negative_int
     from nuav2.synth import LAYOUTS, PRESETS
 
     p = subparsers.add_parser(
@@ -56,14 +58,17 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "docs/realism.md). Prints a JSON summary with the wall and CPU time per frame (one 10 Hz "
                     "sweep plus its 20 Hz camera images), with and without building the world.")
     p.add_argument("out_dir", type=Path, help="dataset root; the log goes to OUT_DIR/<split>/<log_id>/")
-    p.add_argument("--seed", type=int, default=0, help="world seed: layout, actors, offsets, timestamps")
+    p.add_argument("--seed", type=non_negative_int, default=0,
+                   help="world seed (>= 0): layout, actors, offsets, timestamps")
     p.add_argument("--preset", choices=PRESETS, default="easy", help="realism preset (default: easy)")
     p.add_argument("--layout", choices=LAYOUTS, default=None,
                    help="road layout (default: four_way, or drawn from the seed when layouts vary)")
-    p.add_argument("--seconds", type=float, default=2.0, help="driving time (10 sweeps per second)")
-    p.add_argument("--scale", type=float, default=0.125, help="camera resolution factor of the AV2 rig")
+    p.add_argument("--seconds", type=synth_seconds, default=2.0,
+                   help="driving time, > 0.05 (10 sweeps per second)")
+    p.add_argument("--scale", type=synth_image_scale, default=0.125,
+                   help="camera resolution factor of the AV2 rig, > 0")
     p.add_argument("--split", default="train", choices=("train", "val", "test"), help="AV2 split folder")
     p.add_argument("--stereo", action="store_true", help="also write the two stereo_front cameras")
-    p.add_argument("--lidar-azimuth-steps", type=int, default=None,
-                   help="rays per beam per sweep (default 512: ~28k points)")
+    p.add_argument("--lidar-azimuth-steps", type=lidar_azimuth_steps, default=None,
+                   help="rays per beam per sweep, >= 8 (default 512: ~28k points)")
     p.set_defaults(func=run)

@@ -4,6 +4,11 @@ Workers are spawned processes that exit when the main process dies (finding: a k
 ``convert`` left its workers running for minutes, finishing shards nobody would merge). A worker
 that dies (OOM killer, a signal) breaks the pool; its logs are retried in a fresh pool, at most
 ``max_retries`` times, like a Ray task whose worker died.
+
+Interrupts belong to the main process: workers ignore SIGINT (a Ctrl-C reaches the whole process
+group, and a worker interrupted while it held the pool's queue lock hung the pool's shutdown for
+good); on KeyboardInterrupt (or SIGTERM, which the CLI turns into one) the main process cancels
+what has not started and sends its workers SIGTERM, which unwinds their logs' cleanup.
 """
 
 from __future__ import annotations
@@ -30,7 +35,9 @@ EXIT_GRACE_S = 10.0
 
 
 def _exit_on_sigterm(signum, frame) -> None:  # noqa: ARG001 - signal handler signature
-    # SystemExit unwinds the task, so temp files and .partial directories are removed on the way out.
+    # SystemExit unwinds the task, so temp files and .partial directories are removed on the way out;
+    # a second SIGTERM (the process group's, then the main process's) must not cut that cleanup short.
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
     raise SystemExit(128 + signum)
 
 
@@ -66,9 +73,37 @@ def worker_pool(workers: int, initializer=None, initargs: tuple = ()) -> Process
 
 
 def _init_worker(parent_pid: int, initializer, initargs: tuple) -> None:
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     exit_with_parent(parent_pid)
     if initializer is not None:
         initializer(*initargs)
+
+
+@contextlib.contextmanager
+def stopped_on_interrupt(pool: ProcessPoolExecutor):
+    """``pool``, shut down normally at the end, but on an interrupt (or any error) stopped at once:
+    queued work cancelled, workers sent SIGTERM (their cleanup runs), killed after a grace period."""
+    try:
+        yield pool
+    except BaseException:
+        stop_pool(pool)
+        raise
+    pool.shutdown(wait=True)
+
+
+def stop_pool(pool: ProcessPoolExecutor, grace_s: float = EXIT_GRACE_S) -> None:
+    processes = list((getattr(pool, "_processes", None) or {}).values())
+    pool.shutdown(wait=False, cancel_futures=True)
+    for proc in processes:
+        with contextlib.suppress(OSError, ValueError):
+            proc.terminate()
+    deadline = time.monotonic() + grace_s
+    for proc in processes:
+        with contextlib.suppress(OSError, ValueError, AssertionError):
+            proc.join(max(0.0, deadline - time.monotonic()))
+            if proc.is_alive():
+                proc.kill()
+                proc.join(1.0)
 
 
 def run_local(jobs: list[Path], dataroot: Path, options, progress: BatchProgress,
@@ -104,7 +139,7 @@ def _pool_round(jobs: list[Path], dataroot: Path, options, progress: BatchProgre
     """One pool over ``jobs``; returns the logs whose worker died (to retry), appends the others' results."""
     workers = min(options.workers, len(jobs))
     died: list[Path] = []
-    with worker_pool(workers) as pool:
+    with stopped_on_interrupt(worker_pool(workers)) as pool:
         pending = {pool.submit(run_one, d, dataroot, options, fault): d for d in jobs}
         while pending:
             progress.update(running=min(len(pending), workers))

@@ -8,13 +8,17 @@ options that produced it; a shard from other options is redone, not merged.
 
 from __future__ import annotations
 
+import contextlib
 import json
+import logging
 import re
 from pathlib import Path
 
 from nuav2.atomic import atomic_directory
 from nuav2.nuscenes_db.tables import PER_LOG_TABLES
 from nuav2.nuscenes_db.writer import WRITER_FORMAT, LogShard
+
+log = logging.getLogger(__name__)
 
 SHARDS_DIRNAME = ".nuav2_shards"
 META_FILE = "meta.json"
@@ -36,13 +40,44 @@ def shard_dir(dataroot: Path, version: str, log_id: str) -> Path:
 
 
 def save_shard(path: Path, shard: LogShard, fingerprint: str) -> None:
-    """Write the shard's files into a temp directory, then rename it to ``path`` in one step."""
+    """Write the shard's files into a temp directory, then rename it to ``path`` in one step.
+
+    A shard it replaces (the log converted before with other options) may list data files this
+    one does not (other channels, other sample/sweep folders): those are removed after the
+    rename, unless the same log's shard of another version in this OUT still lists them."""
+    before = data_files(path)
     meta = {"format": WRITER_FORMAT, "fingerprint": fingerprint, "log_id": shard.log_id,
             "channels": shard.channels, "meta": shard.meta}
     with atomic_directory(path) as tmp:
         for table in PER_LOG_TABLES:
             (tmp / f"{table}.json").write_text(json.dumps(shard.tables[table], ensure_ascii=False))
         (tmp / META_FILE).write_text(json.dumps(meta, ensure_ascii=False, indent=1))
+    stale = before - {r["filename"] for r in shard.tables["sample_data"]}
+    if stale:
+        _remove_stale_files(path, stale)
+
+
+def data_files(path: Path) -> set[str]:
+    """Dataroot-relative data files a shard's sample_data lists (none when absent or unreadable)."""
+    if not (Path(path) / "sample_data.json").is_file():
+        return set()
+    try:
+        return {r["filename"] for r in read_table(path, "sample_data")}
+    except (ShardError, KeyError, TypeError):
+        return set()
+
+
+def _remove_stale_files(path: Path, stale: set[str]) -> None:
+    root = Path(path).parent.parent  # OUT/.nuav2_shards
+    for other_version in root.iterdir():
+        if other_version != Path(path).parent:
+            stale -= data_files(other_version / Path(path).name)
+    dataroot = root.parent
+    for rel in sorted(stale):
+        with contextlib.suppress(FileNotFoundError):
+            (dataroot / rel).unlink()
+    log.info("%s: removed %d data file(s) the log's earlier conversion wrote and this one does not",
+             Path(path).name, len(stale))
 
 
 def read_meta(path: Path) -> dict:

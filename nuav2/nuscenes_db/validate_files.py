@@ -57,8 +57,8 @@ class FileChecks(TableStore):
             self.add("sample_data", token, "filename", f"{rel}: a lidar file must end in .bin "
                      "(LidarPointCloud asserts it)", "lidar_file")
         size = entry.stat().st_size
-        if size == 0 or size % LIDAR_ROW_BYTES:
-            self.add("sample_data", token, "filename", f"{rel}: {size} bytes is not a positive multiple of "
+        if size % LIDAR_ROW_BYTES:  # 0 bytes is a sweep without points: LidarPointCloud reads (4, 0)
+            self.add("sample_data", token, "filename", f"{rel}: {size} bytes is not a multiple of "
                      f"{LIDAR_ROW_BYTES} (5 float32 per point)", "lidar_file")
 
     def _check_image(self, token: str, rel: str, wh: tuple[int, int], decode: bool) -> None:

@@ -233,6 +233,9 @@ def _write_lidar_top(scene: SceneLog, timeline: Timeline, lidar_ch: str, lidar_T
     for f in progress_bar(timeline.frames[lidar_ch], desc=f"{scene.log_id[:8]} {lidar_ch}", unit="sweep",
                           leave=False, disable=not options.show_progress):
         points = scene.sweep(scene.lidar_sweeps[f.index])
+        if not len(points.xyz_ego):
+            log.warning("%s: the LiDAR sweep at %d ns has no points; its %s file is empty", scene.log_id,
+                        scene.lidar_sweeps[f.index].timestamp_ns, lidar_ch)
         rel = data_filename(scene.log_id, lidar_ch, f.timestamp_us, f.is_key_frame, ".pcd.bin")
         write_pcd_bin(files.path(rel), sweep_to_pcd_rows(points, lidar_T_ego))
         filenames[(lidar_ch, f.index)] = rel

@@ -76,7 +76,7 @@ class SynthConfig:
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
                 raise bad(name, "must be a finite number > 0")
         if round(self.seconds * 10) < 1:
-            raise bad("seconds", "must give at least one 10 Hz sweep (>= 0.05)")
+            raise bad("seconds", "must give at least one 10 Hz sweep (> 0.05)")
         for name in ("n_parked", "n_moving", "n_pedestrians", "n_cyclists"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < 0:
