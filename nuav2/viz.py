@@ -244,14 +244,14 @@ def render(
     """``nuav2 viz``: open the database, optionally a MapTR results json, and render one keyframe."""
     from nuscenes.nuscenes import NuScenes
 
+    all_preds = None if pred_path is None else load_predictions(pred_path)  # a bad file fails before the load
     nusc = NuScenes(version=version, dataroot=str(dataroot), verbose=False)
     try:
         nusc.get("sample", sample_token)
     except KeyError as e:
         raise ValueError(f"--sample {sample_token}: no sample with this token in {dataroot}/{version}") from e
     preds = None
-    if pred_path is not None:
-        all_preds = load_predictions(pred_path)
+    if all_preds is not None:
         if sample_token not in all_preds:
             raise ValueError(f"{pred_path}: no predictions for sample {sample_token}")
         preds = all_preds[sample_token]

@@ -6,10 +6,14 @@ import argparse
 import json
 import logging
 
+from nuav2.cli_types import number, positive_float
+
 log = logging.getLogger(__name__)
 
 
 DEFAULT_SPLITS = ("geo_val", "av2_val", "val", "mini_val", "all")  # --split default: the first present
+# Points per line for the chamfer distance: MapTR uses 100; beyond 1000 only the run time grows.
+N_RESAMPLE_RANGE = (2, 1000)
 
 
 def format_table(result: dict) -> str:
@@ -73,25 +77,71 @@ def choose_classes(preds: dict, classes: list[str] | None, pred_path: str) -> tu
     return found, missing
 
 
+def check_classes(classes: list[str] | None, known: list[str], source: str) -> None:
+    """Refuse a ``--classes`` name outside the vocabulary (a typo would score a silent AP 0)."""
+    from nuav2.cli import UsageError
+
+    if not classes:
+        return
+    unknown = sorted(set(classes) - set(known))
+    if unknown:
+        raise UsageError(f"--classes: unknown class(es) {', '.join(unknown)}; the classes of {source} are: "
+                         f"{', '.join(known)}")
+    twice = sorted({c for c in classes if classes.count(c) > 1})
+    if twice:
+        raise UsageError(f"--classes: {', '.join(twice)} given more than once")
+
+
+def gt_file_classes(gts: dict, preds: dict) -> list[str]:
+    """The class vocabulary when the GT is a file: the map classes plus any the file or the
+    predictions name (a GT file of another MapTR variant may have its own)."""
+    from nuav2.evaluate import MAP_CLASSES
+
+    seen = {vec[0] for vectors in (*gts.values(), *preds.values()) for vec in vectors}
+    return [*MAP_CLASSES, *sorted(seen - set(MAP_CLASSES))]
+
+
+def check_out(out: str | None) -> None:
+    """Refuse an unusable ``--out`` before the work, naming the path as given."""
+    from nuav2.cli import UsageError
+    from nuav2.cli_inputs import out_path_problem
+
+    problem = out_path_problem(out) if out else None
+    if problem:
+        raise UsageError(f"--out {out}: {problem}")
+
+
+def map_gt(args: argparse.Namespace) -> tuple[dict, str]:
+    """(GT vectors, source description) from the database's map, for the chosen split."""
+    from nuav2.cli_inputs import diagnosed_tables
+    from nuav2.maptr.vectorize import gt_vectors_for_split  # the map GT; never a cached file
+
+    split = resolve_split(args.dataroot, args.version, args.split)
+    with diagnosed_tables(args.dataroot, args.version):
+        gts = gt_vectors_for_split(args.dataroot, args.version, split, patch=tuple(args.patch))
+    return gts, f"{args.dataroot} {args.version} split {split} (from the map)"
+
+
 def _run(args: argparse.Namespace) -> int:
     from nuav2.atomic import atomic_write_json
     from nuav2.cli import UsageError
+    from nuav2.evaluate import MAP_CLASSES
     from nuav2.evaluate.chamfer_ap import evaluate_vectors
     from nuav2.evaluate.vector_files import load_gt_file, load_predictions
 
+    check_out(args.out)
+    if not args.gt_json:
+        if not args.dataroot or not args.version:
+            raise UsageError("--dataroot and --version are required (or give --gt-json)")
+        check_classes(args.classes, list(MAP_CLASSES), "the map GT")
     preds = load_predictions(args.pred)
-    classes, left_out = choose_classes(preds, args.classes, args.pred)
     if args.gt_json:
         gts = load_gt_file(args.gt_json)
         source = str(args.gt_json)
+        check_classes(args.classes, gt_file_classes(gts, preds), f"{source} and {args.pred}")
     else:
-        if not args.dataroot or not args.version:
-            raise UsageError("--dataroot and --version are required (or give --gt-json)")
-        from nuav2.maptr.vectorize import gt_vectors_for_split  # the map GT; never a cached file
-
-        split = resolve_split(args.dataroot, args.version, args.split)
-        gts = gt_vectors_for_split(args.dataroot, args.version, split, patch=tuple(args.patch))
-        source = f"{args.dataroot} {args.version} split {split} (from the map)"
+        gts, source = map_gt(args)
+    classes, left_out = choose_classes(preds, args.classes, args.pred)
     try:
         result = evaluate_vectors(
             gts, preds, classes=classes, thresholds=args.thresholds, n_resample=args.n_resample
@@ -128,7 +178,7 @@ def register(subparsers) -> None:
     )
     p.add_argument(
         "--patch",
-        type=float,
+        type=positive_float,
         nargs=2,
         default=(60.0, 30.0),
         metavar=("FORWARD_M", "RIGHT_M"),
@@ -137,8 +187,11 @@ def register(subparsers) -> None:
     p.add_argument("--classes", nargs="+", default=None,
                    help=f"classes the mAP averages (default: those of {', '.join(MAP_CLASSES)} that the "
                         "result file predicts at all; the others are left out with a warning)")
-    p.add_argument("--thresholds", type=float, nargs="+", default=list(MAP_THRESHOLDS_M))
-    p.add_argument("--n-resample", type=int, default=100, help="points per line for the chamfer distance")
+    p.add_argument("--thresholds", type=number(float, lo=0, hi=100, lo_open=True, hi_open=True), nargs="+",
+                   default=list(MAP_THRESHOLDS_M), help="chamfer distance thresholds in metres, in (0, 100)")
+    p.add_argument("--n-resample", type=number(int, *N_RESAMPLE_RANGE), default=100,
+                   help=f"points per line for the chamfer distance ({N_RESAMPLE_RANGE[0]} to "
+                        f"{N_RESAMPLE_RANGE[1]}; default 100, as MapTR)")
     p.add_argument("--out", help="also write the result JSON here (atomically)")
     p.add_argument("--json", action="store_true", help="print the result as JSON instead of a table")
     p.set_defaults(func=_run)

@@ -7,6 +7,8 @@ import json
 import sys
 from pathlib import Path
 
+from nuav2.cli_types import non_negative_int, positive_float, positive_int
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
@@ -20,10 +22,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, type=Path, help="directory for the .pkl files")
     p.add_argument("--prefix", default="nuav2", help="file name prefix (MapTR uses 'nuscenes')")
     p.add_argument("--splits", nargs="+", default=None, help="split names (default: all in splits.json)")
-    p.add_argument("--max-sweeps", type=int, default=10, help="previous LIDAR_TOP sweeps per keyframe")
+    p.add_argument("--max-sweeps", type=non_negative_int, default=10,
+                   help="previous LIDAR_TOP sweeps per keyframe (>= 0; default 10)")
     p.add_argument(
         "--patch",
-        type=float,
+        type=positive_float,
         nargs=2,
         default=(60.0, 30.0),
         metavar=("FORWARD_M", "SIDE_M"),
@@ -34,7 +37,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         default="",
         help="prefix written instead of DATAROOT in file paths (e.g. ./data/nuav2 for MapTR)",
     )
-    p.add_argument("--workers", type=int, default=1,
+    p.add_argument("--workers", type=positive_int, default=1,
                    help="processes (or Ray actors) making the records, each holding the tables in memory; "
                         "with --executor ray, 1 means one actor per cluster CPU")
     p.add_argument("--executor", choices=["local", "ray"], default="local",
@@ -46,26 +49,28 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from nuav2.cli import UsageError, require_database
+    from nuav2.cli_inputs import diagnosed_tables
     from nuav2.devkit_compat import HOOK_DIR
     from nuav2.executors.ray_tasks import RayMissingError
     from nuav2.maptr.infos import export_infos
 
     require_database(args.dataroot, args.version)
     try:
-        written = export_infos(
-            args.dataroot,
-            args.version,
-            args.out,
-            args.prefix,
-            args.splits,
-            args.max_sweeps,
-            tuple(args.patch),
-            args.path_root,
-            workers=max(1, args.workers),
-            executor=args.executor,
-            ray_address=args.ray_address,
-            progress=not args.no_progress,
-        )
+        with diagnosed_tables(args.dataroot, args.version):
+            written = export_infos(
+                args.dataroot,
+                args.version,
+                args.out,
+                args.prefix,
+                args.splits,
+                args.max_sweeps,
+                tuple(args.patch),
+                args.path_root,
+                workers=args.workers,
+                executor=args.executor,
+                ray_address=args.ray_address,
+                progress=not args.no_progress,
+            )
     except RayMissingError as e:
         raise UsageError(str(e)) from e
     print(json.dumps({split: str(path) for split, path in written.items()}, indent=1))

@@ -8,6 +8,12 @@ from pathlib import Path
 
 import numpy as np
 
+from nuav2.cli_types import number
+
+# Camera-to-sweep sync tolerance in ms: positive; AV2 sweeps come every 100 ms, so a second is
+# far beyond any meaningful pairing (and keeps the value in nanoseconds an ordinary integer).
+TOLERANCE_MS_MAX = 1000.0
+
 
 def summarize_log(log_dir: Path, calibration_dir: Path | None, require_cameras: bool,
                   tolerance_ms: float) -> dict:
@@ -58,6 +64,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="calibration to use instead of LOG_DIR/calibration (for fragments without one)")
     p.add_argument("--allow-missing-cameras", action="store_true",
                    help="read a log whose camera images are missing instead of failing")
-    p.add_argument("--tolerance-ms", type=float, default=25.0,
-                   help="max |image - sweep| time for a sweep to count as synced (default 25)")
+    p.add_argument("--tolerance-ms", type=number(float, lo=0, hi=TOLERANCE_MS_MAX, lo_open=True),
+                   default=25.0,
+                   help="max |image - sweep| time for a sweep to count as synced, in (0, "
+                        f"{TOLERANCE_MS_MAX:g}] ms (default 25)")
     p.set_defaults(func=_run)

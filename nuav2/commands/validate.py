@@ -7,6 +7,7 @@ import json
 import sys
 from pathlib import Path
 
+from nuav2.cli_types import non_negative_int
 from nuav2.nuscenes_db.validate import DEFAULT_MAX_PER_KIND, validate_database
 
 
@@ -22,8 +23,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--decode-images", action="store_true",
                    help="also decode every image to its end (finds truncated JPEGs; ~3 ms per AV2 image)")
     p.add_argument("--devkit", action="store_true", help="also instantiate NuScenes() and NuScenesMap()")
-    p.add_argument("--max-per-kind", type=int, default=DEFAULT_MAX_PER_KIND,
-                   help="problems listed per (table, field, check) kind; all are counted")
+    p.add_argument("--max-per-kind", type=non_negative_int, default=DEFAULT_MAX_PER_KIND,
+                   help="problems listed per (table, field, check) kind (>= 0); all are counted")
     p.add_argument("--json", action="store_true", help="print the report as JSON")
     p.add_argument("--quiet", action="store_true", help="no progress bar (shown only on a terminal anyway)")
     p.set_defaults(func=run)
@@ -35,5 +36,8 @@ def run(args: argparse.Namespace) -> int:
                                devkit=args.devkit,
                                max_per_kind=args.max_per_kind,
                                progress=not args.quiet and sys.stderr.isatty())
+    code = 0 if report.ok else 1
     print(json.dumps(report.to_json(), indent=1) if args.json else report.format_text())
-    return 0 if report.ok else 1
+    return code
+
+

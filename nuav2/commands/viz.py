@@ -5,6 +5,20 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from nuav2.cli_types import number
+
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")  # what the picture is written as (by OpenCV)
+TILE_HEIGHT_RANGE = (16, 4320)  # pixels: below, the labels do not fit; above 8K, memory explodes
+
+
+def image_path(text: str) -> Path:
+    """An ``--out`` path whose suffix names a supported image format (refused while parsing)."""
+    path = Path(text)
+    if path.suffix.lower() not in IMAGE_SUFFIXES:
+        raise argparse.ArgumentTypeError(
+            f"{text!r} is not a supported image file name: it must end in {', '.join(IMAGE_SUFFIXES)}")
+    return path
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
@@ -16,20 +30,28 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("dataroot", type=Path, help="nuScenes-format dataroot")
     p.add_argument("--version", required=True, help="table folder under DATAROOT")
     p.add_argument("--sample", required=True, help="sample token")
-    p.add_argument("--out", required=True, type=Path, help="output image (.png or .jpg)")
+    p.add_argument("--out", required=True, type=image_path, help="output image (.png, .jpg or .jpeg)")
     p.add_argument("--pred", type=Path, default=None, help="MapTR-format results json to overlay")
-    p.add_argument("--score-thr", type=float, default=0.4, help="minimum prediction confidence drawn")
-    p.add_argument("--tile-height", type=int, default=270, help="height of each camera tile in pixels")
+    p.add_argument("--score-thr", type=number(float, lo=0, hi=1), default=0.4,
+                   help="minimum prediction confidence drawn, in [0, 1] (default 0.4)")
+    p.add_argument("--tile-height", type=number(int, *TILE_HEIGHT_RANGE), default=270,
+                   help=f"height of each camera tile in pixels ({TILE_HEIGHT_RANGE[0]} to "
+                        f"{TILE_HEIGHT_RANGE[1]}; default 270)")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    from nuav2.cli import require_database
+    from nuav2.cli import UsageError, require_database
+    from nuav2.cli_inputs import diagnosed_tables, out_path_problem
     from nuav2.viz import render
 
+    problem = out_path_problem(args.out)
+    if problem:
+        raise UsageError(f"--out {args.out}: {problem}")
     require_database(args.dataroot, args.version)
-    out = render(
-        args.dataroot, args.version, args.sample, args.out, args.pred, args.score_thr, args.tile_height
-    )
+    with diagnosed_tables(args.dataroot, args.version):
+        out = render(
+            args.dataroot, args.version, args.sample, args.out, args.pred, args.score_thr, args.tile_height
+        )
     print(out)
     return 0

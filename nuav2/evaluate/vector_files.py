@@ -6,18 +6,82 @@ draws or scores the same way; every error names the file and the record.
 
 from __future__ import annotations
 
+import contextlib
 import json
 from pathlib import Path
 
+import numpy as np
 
-def _parse_vector(vec, where: str, is_pred: bool):
+
+def _parse_vector(vec, where: str, is_pred: bool) -> tuple:
+    """(cls_name, (N, 2|3) float64 points[, confidence]) of one vector record; a ValueError naming
+    ``where`` (file, sample, vector index) and the field on anything else, so no bad record
+    reaches the evaluator or the drawing code as an unhashable name or a None score."""
     if not isinstance(vec, dict) or "pts" not in vec or "cls_name" not in vec:
         raise ValueError(f"{where}: each vector needs 'pts' and 'cls_name'")
+    name = vec["cls_name"]
+    if not isinstance(name, str):
+        raise ValueError(f"{where}: 'cls_name' must be a string, got {_show(name)}")
+    pts = _points(vec["pts"], where)
     if not is_pred:
-        return (vec["cls_name"], vec["pts"])
+        return (name, pts)
     if "confidence_level" not in vec:
         raise ValueError(f"{where}: prediction vector has no 'confidence_level'")
-    return (vec["cls_name"], vec["pts"], vec["confidence_level"])
+    return (name, pts, _confidence(vec["confidence_level"], where))
+
+
+def _show(value) -> str:
+    """A short repr of a bad value for a one-line message."""
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def _points(pts, where: str) -> np.ndarray:
+    """'pts' as (N, 2) or (N, 3) finite float64 (an empty list: no points); numpy converts well-formed
+    lists in one pass, anything else gets a message saying which point is wrong and how."""
+    arr = None
+    if isinstance(pts, list) and pts:
+        with contextlib.suppress(ValueError, TypeError):
+            arr = np.asarray(pts)
+    elif isinstance(pts, list):
+        return np.zeros((0, 2))
+    if arr is None or arr.dtype.kind not in "iuf" or arr.ndim != 2 or arr.shape[1] not in (2, 3):
+        problem = _points_problem(pts)
+        if problem:
+            raise ValueError(f"{where}: 'pts' {problem}")
+        arr = np.array(pts, dtype=object)  # well-formed, but numbers numpy did not take as such
+    try:
+        arr = arr.astype(np.float64)
+    except OverflowError:
+        raise ValueError(f"{where}: 'pts' holds a number too large for a float") from None
+    if not np.isfinite(arr).all():
+        raise ValueError(f"{where}: 'pts' holds NaN or Inf")
+    return arr
+
+
+def _points_problem(pts) -> str | None:
+    """Why ``pts`` is not a list of [x, y] (or [x, y, z]) number lists; None if it is."""
+    if not isinstance(pts, list):
+        return f"must be a list of [x, y] points, got {_show(pts)}"
+    for i, p in enumerate(pts):
+        if not isinstance(p, list) or len(p) not in (2, 3):
+            return f"point {i} must be [x, y] (or [x, y, z]), got {_show(p)}"
+        bad = [x for x in p if not _is_number(x)]
+        if bad:
+            return f"point {i} holds {_show(bad[0])}, not a number"
+    widths = sorted({len(p) for p in pts})
+    return f"points must all have 2 (or all 3) coordinates, got lengths {widths}" if len(widths) > 1 else None
+
+
+def _confidence(value, where: str) -> float:
+    """'confidence_level' as a finite float."""
+    if not _is_number(value) or not np.isfinite(value):
+        raise ValueError(f"{where}: 'confidence_level' must be a finite number, got {_show(value)}")
+    return float(value)
+
+
+def _is_number(x) -> bool:
+    return isinstance(x, (int, float)) and not isinstance(x, bool)
 
 
 def _entries(data, path: Path, key: str):
@@ -33,6 +97,9 @@ def _entries(data, path: Path, key: str):
         for i, rec in enumerate(body):
             if not isinstance(rec, dict) or "sample_token" not in rec or "vectors" not in rec:
                 raise ValueError(f"{path}: {key}[{i}] needs 'sample_token' and 'vectors'")
+            if not isinstance(rec["sample_token"], str):
+                raise ValueError(f"{path}: {key}[{i}] 'sample_token' must be a string, "
+                                 f"got {_show(rec['sample_token'])}")
             out.append((rec["sample_token"], rec["vectors"]))
         return out
     raise ValueError(
@@ -48,6 +115,8 @@ def _load_vector_file(path: str | Path, key: str, is_pred: bool) -> dict:
         raise FileNotFoundError(f"{path}: file not found") from None
     except json.JSONDecodeError as e:
         raise ValueError(f"{path}: not valid JSON ({e})") from None
+    except UnicodeDecodeError as e:
+        raise ValueError(f"{path}: not UTF-8 text ({e.reason} at byte {e.start})") from None
     out: dict = {}
     for token, vectors in _entries(data, path, key):
         if token in out:
@@ -60,11 +129,11 @@ def _load_vector_file(path: str | Path, key: str, is_pred: bool) -> dict:
     return out
 
 
-def load_predictions(path: str | Path) -> dict[str, list[tuple[str, list, float]]]:
+def load_predictions(path: str | Path) -> dict[str, list[tuple[str, np.ndarray, float]]]:
     """Read MapTR's ``nuscmap_results.json`` ({'meta', 'results': [...]}) or a dict of lists."""
     return _load_vector_file(path, "results", is_pred=True)
 
 
-def load_gt_file(path: str | Path) -> dict[str, list[tuple[str, list]]]:
+def load_gt_file(path: str | Path) -> dict[str, list[tuple[str, np.ndarray]]]:
     """Read a MapTR GT file ({'GTs': [{sample_token, vectors: [{pts, cls_name}]}]})."""
     return _load_vector_file(path, "GTs", is_pred=False)
