@@ -39,8 +39,12 @@ class Terminated(KeyboardInterrupt):
     half-written file is removed on the way out, instead of the process dying where it stands."""
 
 
+_TERMINATED = []  # set by the handler: code between it and main (Ray's wait) may re-raise a plain Ctrl-C
+
+
 def _raise_terminated(signum, frame) -> None:  # noqa: ARG001 - signal handler signature
     signal.signal(signal.SIGTERM, signal.SIG_IGN)  # a second one must not cut the cleanup short
+    _TERMINATED.append(signum)
     raise Terminated()
 
 
@@ -109,16 +113,17 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
                         format="%(levelname)s %(name)s: %(message)s")
     in_main_thread = threading.current_thread() is threading.main_thread()  # signal.signal's rule
+    _TERMINATED.clear()
     previous = signal.signal(signal.SIGTERM, _raise_terminated) if in_main_thread else None
     try:
         with _log_above_progress_bars():
             code = int(args.func(args) or 0)
         sys.stdout.flush()  # a closed pipe shows here, not as "Exception ignored" at exit
         return code
-    except Terminated:
-        print("terminated", file=sys.stderr)
-        return 128 + signal.SIGTERM
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as e:
+        if isinstance(e, Terminated) or _TERMINATED:
+            print("terminated", file=sys.stderr)
+            return 128 + signal.SIGTERM
         print("interrupted", file=sys.stderr)
         return 130
     except BrokenPipeError:  # stdout closed early (`nuav2 ... | head`): stop quietly, as Unix tools do

@@ -91,6 +91,8 @@ def test_ctrl_c_and_sigterm_stop_a_pool_conversion_and_its_workers(synth_split: 
             _, err = main.communicate(timeout=60)
             assert main.returncode == code and err.strip().splitlines()[-1] == said, (name, err)
             assert _wait_for(lambda w=workers: not any(_alive(pid) for pid in w), 15), name
+            stopped = sorted(f.read_text() for f in (tmp_path / name / "hook").glob("*.stopped"))
+            assert stopped == ["SystemExit", "SystemExit"], (name, stopped)  # unwound: cleanup ran
         finally:
             with contextlib.suppress(ProcessLookupError):
                 os.killpg(main.pid, signal.SIGKILL)

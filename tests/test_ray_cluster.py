@@ -148,3 +148,29 @@ def test_a_local_ray_runs_no_more_logs_at_once_than_workers():
         assert 1 <= at_once <= 3
     assert not ray.is_initialized()
     assert "resources" not in task_resources({"CPU": 8.0}, options)  # clusters without slots
+
+
+def test_an_interrupted_ray_driver_cancels_its_running_logs_so_they_clean_up(
+        synth_split: Path, tmp_path: Path):
+    """SIGTERM / Ctrl-C on the driver: running tasks get Ray's cancel (a KeyboardInterrupt, which
+    unwinds a log's cleanup) before the local Ray instance stops, instead of being killed mid-write."""
+    from nuav2.executors.task import FAULT_ENV
+
+    hook = tmp_path / "hook"
+    hook.mkdir()
+    env = {**os.environ, FAULT_ENV: f"hang:{hook}", "PYTHONPATH": str(REPO)}
+    driver = subprocess.Popen([sys.executable, "-m", "nuav2", "convert", "av2", str(synth_split),
+                               str(tmp_path / "out"), "--executor", "ray", "--workers", "2", "--no-progress"],
+                              env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    try:
+        end = time.monotonic() + 180
+        while len(list(hook.glob("*.attempts"))) < 2:
+            assert driver.poll() is None and time.monotonic() < end, "the Ray tasks never started"
+            time.sleep(0.5)
+        driver.send_signal(signal.SIGTERM)
+        _, err = driver.communicate(timeout=120)
+    finally:
+        driver.kill()
+    assert driver.returncode == 143 and err.strip().splitlines()[-1] == "terminated", err
+    assert sorted(f.read_text() for f in hook.glob("*.stopped")) == ["KeyboardInterrupt"] * 2
+    assert not (tmp_path / "out" / VERSION).exists()

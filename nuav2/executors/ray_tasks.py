@@ -16,8 +16,10 @@ import contextlib
 import logging
 import math
 import os
+import signal
 import socket
 import tempfile
+import threading
 import uuid
 from collections.abc import Iterator
 from dataclasses import replace
@@ -38,6 +40,7 @@ DEFAULT_MEMORY_GB = {"native": 2.0, "warp": 4.0, "render": 8.0}
 # A custom resource of a local instance: ``--workers`` of it, one per task, so rounding fractional
 # ``--cpus-per-task`` up to whole CPUs (``whole_cpus``) never lets more logs run than ``--workers``.
 LOG_SLOT = "nuav2_log_slot"
+CANCEL_GRACE_S = 10.0  # how long an interrupted driver waits for cancelled tasks to clean up
 
 
 class RayMissingError(ImportError):
@@ -82,6 +85,28 @@ def connected(address: str | None = None, num_cpus: float | None = None,
     if ray.is_initialized():
         yield ray
         return
+    with _keeping_sigterm_handler():
+        _init(ray, address, num_cpus, log_slots)
+    try:
+        yield ray
+    finally:
+        ray.shutdown()
+
+
+@contextlib.contextmanager
+def _keeping_sigterm_handler() -> Iterator[None]:
+    """Ray's ``init`` installs its own SIGTERM handler in the driver (it logs and exits 1 at once);
+    put the caller's back, so the CLI's SIGTERM still cancels the tasks and cleans up."""
+    main_thread = threading.current_thread() is threading.main_thread()
+    previous = signal.getsignal(signal.SIGTERM) if main_thread else None
+    try:
+        yield
+    finally:
+        if callable(previous):  # a Python handler (the CLI's); a default stays Ray's
+            signal.signal(signal.SIGTERM, previous)
+
+
+def _init(ray, address: str | None, num_cpus: float | None, log_slots: int | None) -> None:
     address = address or os.environ.get("RAY_ADDRESS") or None
     if address:
         check_reachable(address)
@@ -99,10 +124,6 @@ def connected(address: str | None = None, num_cpus: float | None = None,
                      logging_level=logging.WARNING)
         except Exception as e:  # Ray raises a bare Exception when its raylet or GCS does not come up
             raise RayStartError(local_start_failure(e)) from e
-    try:
-        yield ray
-    finally:
-        ray.shutdown()
 
 
 def whole_cpus(num_cpus: float | None) -> int | None:
@@ -326,10 +347,24 @@ def _run_connected(ray, jobs: list[Path], root: Path, options, progress: BatchPr
                                                     retry_exceptions=False, **res)
         quiet = replace(options, show_progress=False)
         pending = {task.remote(str(d), str(root), quiet, token, fault): d for d in jobs}
-        return _collect(ray, pending, root, options, progress, n_slots)
+        try:
+            return _collect(ray, pending, root, options, progress, n_slots)
+        except BaseException:  # Ctrl-C / SIGTERM: let running logs remove their files before Ray stops
+            cancel_and_wait(ray, list(pending))
+            raise
     finally:
         with contextlib.suppress(OSError):
             marker.unlink()
+
+
+def cancel_and_wait(ray, refs: list, grace_s: float = CANCEL_GRACE_S) -> None:
+    """Cancel ``refs``: queued tasks are dropped, running ones get a KeyboardInterrupt, which unwinds
+    their log's cleanup (its written files are removed); wait up to ``grace_s`` for them to end."""
+    for ref in refs:
+        with contextlib.suppress(Exception):
+            ray.cancel(ref, force=False)
+    with contextlib.suppress(Exception):
+        ray.wait(refs, num_returns=len(refs), timeout=grace_s)
 
 
 def _collect(ray, pending: dict, dataroot: Path, options, progress: BatchProgress,

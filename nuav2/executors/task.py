@@ -8,7 +8,8 @@ written by ``convert_one_log``, atomically, so every executor produces the same 
 driver and handed to each task. Every attempt at a log appends the worker's pid to
 ``DIR/<log_id>.attempts``; then ``kill`` kills the worker (SIGKILL) on the log's first attempt,
 after its images are written and before its shard is saved; ``crash`` does so on every attempt;
-``hang`` sleeps until the process is killed; ``record`` does nothing more.
+``hang`` sleeps until the process is killed or interrupted (an interrupt that unwinds the task,
+as a log's cleanup needs, writes ``DIR/<log_id>.stopped`` naming it); ``record`` does nothing more.
 """
 
 from __future__ import annotations
@@ -40,10 +41,15 @@ def record_attempt(spec: str | None, log_id: str) -> None:
     """Test hook, at the start of a log: note this attempt; ``hang`` stops here until killed."""
     if not spec:
         return
-    with _attempts_file(spec, log_id).open("a") as f:
+    attempts = _attempts_file(spec, log_id)
+    with attempts.open("a") as f:
         f.write(f"{os.getpid()}\n")
-    while spec.startswith("hang:"):
-        time.sleep(1.0)
+    try:
+        while spec.startswith("hang:"):
+            time.sleep(1.0)
+    except BaseException as e:  # SystemExit (SIGTERM in a pool worker), KeyboardInterrupt (Ray's cancel)
+        attempts.with_suffix(".stopped").write_text(type(e).__name__)
+        raise
 
 
 def inject_fault(spec: str | None, log_id: str) -> None:
