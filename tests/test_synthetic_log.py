@@ -3,6 +3,11 @@
 from __future__ import annotations
 
 import json
+import os
+import signal
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -202,3 +207,23 @@ def test_cli_synth_writes_log_and_reports_timing(tmp_path, capsys):
     assert "argument --scale" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         cli_main(["synth", str(tmp_path), "--seed", "-3"])
+
+
+def test_an_interrupted_synth_leaves_nothing_behind(tmp_path: Path):
+    """Ctrl-C while the log is being written: no partial log and no empty folders the run made."""
+    out = tmp_path / "new" / "logs"
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parent.parent)}
+    proc = subprocess.Popen([sys.executable, "-m", "nuav2", "synth", str(out), "--seconds", "3"], env=env,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    try:
+        end = time.monotonic() + 120
+        while not (out / "train").is_dir() or not any((out / "train").iterdir()):
+            assert proc.poll() is None and time.monotonic() < end, "synth never started writing"
+            time.sleep(0.05)
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        proc.kill()
+    assert proc.returncode == 130 and err.strip().splitlines()[-1] == "interrupted", err
+    assert list(tmp_path.iterdir()) == []

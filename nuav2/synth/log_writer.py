@@ -12,6 +12,7 @@ directory appears atomically (temp dir + rename).
 
 from __future__ import annotations
 
+import contextlib
 import io
 import json
 import time
@@ -179,6 +180,13 @@ def generate_log(out_dir: Path, seed: int = 0, config: SynthConfig | None = None
         raise ValueError(f"split must be one of {SPLITS}, got {split!r}")
     world = build_world(seed, config)
     log_dir = Path(out_dir) / split / world.log_id
-    with atomic_directory(log_dir) as tmp:
-        write_log(world, tmp, split, progress)
+    made = [d for d in log_dir.parents if not d.exists()]  # deepest first
+    try:
+        with atomic_directory(log_dir) as tmp:
+            write_log(world, tmp, split, progress)
+    except BaseException:  # an interrupted or failed run leaves no empty folders it made
+        for d in made:
+            with contextlib.suppress(OSError):
+                d.rmdir()
+        raise
     return log_dir
