@@ -13,6 +13,7 @@ import sys
 import time
 from pathlib import Path
 
+from process_helpers import default_sigint
 from test_executor_support import VERSION, convert, tables
 
 from nuav2.executors.progress import BatchProgress
@@ -65,12 +66,6 @@ def test_workers_exit_when_the_main_process_is_killed(synth_split: Path, tmp_pat
     assert not (tmp_path / "out" / VERSION).exists()
 
 
-def _default_sigint() -> None:
-    """A background job of a non-interactive shell (CI) inherits SIGINT ignored, and Python then keeps
-    it ignored: give the child the default, as a terminal's Ctrl-C finds it."""
-    signal.signal(signal.SIGINT, signal.SIG_DFL)
-
-
 def _start_hanging_conversion(synth_split: Path, tmp_path: Path) -> tuple[subprocess.Popen, list[int]]:
     """``convert --workers 2`` in its own process group, both workers parked at the start of a log."""
     hook = tmp_path / "hook"
@@ -79,7 +74,7 @@ def _start_hanging_conversion(synth_split: Path, tmp_path: Path) -> tuple[subpro
     main = subprocess.Popen([sys.executable, "-m", "nuav2", "convert", "av2", str(synth_split),
                              str(tmp_path / "out"), "--workers", "2", "--no-progress"],
                             env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
-                            start_new_session=True, preexec_fn=_default_sigint)
+                            start_new_session=True, preexec_fn=default_sigint)
     assert _wait_for(lambda: len(list(hook.glob("*.attempts"))) == 2, 120), "workers never started"
     return main, [int(p.read_text().split()[0]) for p in hook.glob("*.attempts")]
 

@@ -14,6 +14,7 @@ import time
 from pathlib import Path
 
 import pytest
+from process_helpers import wait_while_running
 from test_executor_support import VERSION, convert, descendants_named, infos_files, tables
 
 from nuav2.cli import main
@@ -163,10 +164,8 @@ def test_an_interrupted_ray_driver_cancels_its_running_logs_so_they_clean_up(
                                str(tmp_path / "out"), "--executor", "ray", "--workers", "2", "--no-progress"],
                               env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     try:
-        end = time.monotonic() + 180
-        while len(list(hook.glob("*.attempts"))) < 2:
-            assert driver.poll() is None and time.monotonic() < end, "the Ray tasks never started"
-            time.sleep(0.5)
+        wait_while_running(driver, lambda: len(list(hook.glob("*.attempts"))) == 2, 180,
+                           "the Ray tasks never started", poll_s=0.5)
         driver.send_signal(signal.SIGTERM)
         _, err = driver.communicate(timeout=120)
     finally:

@@ -7,7 +7,6 @@ import os
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -21,6 +20,7 @@ from av2.map.map_api import ArgoverseStaticMap, RasterLayerType
 from av2.structures.cuboid import Cuboid
 from av2.structures.sweep import Sweep
 from av2.utils.io import read_img
+from process_helpers import default_sigint, wait_while_running
 
 from nuav2.cli import main as cli_main
 from nuav2.geometry import T_from_quat_trans
@@ -215,12 +215,10 @@ def test_an_interrupted_synth_leaves_nothing_behind(tmp_path: Path):
     env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parent.parent)}
     proc = subprocess.Popen([sys.executable, "-m", "nuav2", "synth", str(out), "--seconds", "3"], env=env,
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
-                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+                            preexec_fn=default_sigint)
     try:
-        end = time.monotonic() + 120
-        while not (out / "train").is_dir() or not any((out / "train").iterdir()):
-            assert proc.poll() is None and time.monotonic() < end, "synth never started writing"
-            time.sleep(0.05)
+        wait_while_running(proc, lambda: (out / "train").is_dir() and any((out / "train").iterdir()), 120,
+                           "synth never started writing", poll_s=0.05)
         proc.send_signal(signal.SIGINT)
         _, err = proc.communicate(timeout=60)
     finally:
