@@ -7,6 +7,7 @@ loader is strict: every error names the file and the field that is wrong.
 from __future__ import annotations
 
 import json
+import os
 import re
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -228,7 +229,7 @@ def available_rigs() -> list[str]:
 def load_rig(name_or_path: str | Path, scale: float = 1.0) -> Rig:
     """Load a rig by built-in name (``nuscenes``, ``av2``, ...) or by JSON path, optionally scaled."""
     p = Path(name_or_path)
-    if not p.suffix:
+    if not p.suffix and not p.is_file() and os.sep not in str(name_or_path):  # a name, not a file
         p = RIG_SPEC_DIR / f"{name_or_path}.json"
         if not p.exists():
             raise RigSpecError(f"unknown rig {name_or_path!r}; built-in rigs: {available_rigs()}")

@@ -192,3 +192,8 @@ def test_unknown_rig_and_bad_json(tmp_path):
     assert str(bad) in str(err.value)
     with pytest.raises(RigSpecError, match="not found"):
         load_rig(tmp_path / "absent.json")
+    with pytest.raises(RigSpecError, match="not found"):
+        load_rig(tmp_path / "no_suffix")  # a path, not a name: not looked up among the built-in rigs
+    spec = tmp_path / "myrig"  # an existing spec file without .json is read as that file
+    spec.write_text((Path(__file__).resolve().parent.parent / "rig_specs" / "nuscenes.json").read_text())
+    assert load_rig(spec).camera_channels == load_rig("nuscenes").camera_channels
