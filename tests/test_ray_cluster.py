@@ -14,7 +14,7 @@ import time
 from pathlib import Path
 
 import pytest
-from process_helpers import wait_while_running
+from process_helpers import default_sigint, wait_while_running
 from test_executor_support import VERSION, convert, descendants_named, infos_files, tables
 
 from nuav2.cli import main
@@ -162,7 +162,8 @@ def test_an_interrupted_ray_driver_cancels_its_running_logs_so_they_clean_up(
     env = {**os.environ, FAULT_ENV: f"hang:{hook}", "PYTHONPATH": str(REPO)}
     driver = subprocess.Popen([sys.executable, "-m", "nuav2", "convert", "av2", str(synth_split),
                                str(tmp_path / "out"), "--executor", "ray", "--workers", "2", "--no-progress"],
-                              env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+                              env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                              preexec_fn=default_sigint)  # Ray's cancel raises through SIGINT
     try:
         wait_while_running(driver, lambda: len(list(hook.glob("*.attempts"))) == 2, 180,
                            "the Ray tasks never started", poll_s=0.5)
