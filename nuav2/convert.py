@@ -266,6 +266,7 @@ def convert_one_log(log_dir: Path, dataroot: Path, options: ConvertOptions,
                                            min_confidence=options.min_confidence, device=options.device,
                                            progress=options.show_progress and options.workers == 1,
                                            threads=log_threads(options))
+        sh.retire_shard(sh.shard_dir(dataroot, options.version, log_dir.name))
         shard = write_log(scene, out_rig, images, Path(dataroot),
                           WriterOptions(keyframe_hz=options.keyframe_hz,
                                         show_progress=options.show_progress and options.workers == 1))

@@ -86,3 +86,23 @@ def test_an_unreadable_log_folder_fails_alone(synth_log: Path, tmp_path: Path):
         (split / "locked").chmod(0o755)
     assert code == 1 and "locked" in err and "Permission denied" in err
     assert [s["description"] for s in table(out, "scene")] == [synth_log.name]
+
+
+def test_a_failed_reconversion_never_lets_the_old_shard_be_resumed(synth_log: Path, tmp_path: Path):
+    """Converted once; converted again with other options but failing half-way (a damaged image),
+    whose cleanup removes files it had overwritten; then converted with the first options again:
+    the old shard must be redone, not resumed over files that are gone."""
+    src = tmp_path / "src" / "train" / synth_log.name
+    shutil.copytree(synth_log, src)
+    out = tmp_path / "out"
+    convert(src.parent, out, "--image-link", "copy")
+    images = sorted((src / "sensors" / "cameras" / "ring_rear_right").iterdir())
+    images[-1].write_bytes(images[-1].read_bytes()[:200])  # the last camera's last image: a late failure
+    code, _, err = cli("convert", "av2", src.parent, out, "--image-link", "symlink", "--no-progress")
+    assert code == 2 and "ring_rear_right" in err
+    shutil.copyfile(synth_log / images[-1].relative_to(src), images[-1])
+    code, stdout, _ = cli("convert", "av2", src.parent, out, "--image-link", "copy", "--no-progress")
+    assert code == 0 and json.loads(stdout)["resumed"] == 0 and json.loads(stdout)["converted"] == 1
+    assert _data_files(out) == {r["filename"] for r in table(out, "sample_data")}
+    code, stdout, stderr = cli("validate", out, "--version", VERSION, "--quiet")
+    assert code == 0, stdout + stderr

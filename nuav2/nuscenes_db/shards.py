@@ -105,11 +105,21 @@ def is_complete(path: Path, fingerprint: str) -> bool:
 
 
 def existing_shards(dataroot: Path, version: str) -> dict[str, Path]:
-    """{log id: shard directory} of every shard under ``dataroot`` for ``version`` (temp dirs skipped)."""
+    """{log id: shard directory} of every shard under ``dataroot`` for ``version`` (temp dirs and
+    retired shards skipped)."""
     root = shard_root(dataroot, version)
     if not root.is_dir():
         return {}
-    return {p.name: p for p in sorted(root.iterdir()) if p.is_dir() and _SAFE_NAME.match(p.name)}
+    return {p.name: p for p in sorted(root.iterdir())
+            if p.is_dir() and _SAFE_NAME.match(p.name) and (p / META_FILE).is_file()}
+
+
+def retire_shard(path: Path) -> None:
+    """Before a log is written again (other options): drop its old shard's metadata, so that if this
+    attempt fails (its cleanup may remove files it overwrote) the old shard is never resumed or merged
+    again. Its sample_data stays, so the next successful save still removes its stale data files."""
+    with contextlib.suppress(FileNotFoundError):
+        (Path(path) / META_FILE).unlink()
 
 
 def read_table(path: Path, table: str) -> list[dict]:
