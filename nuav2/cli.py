@@ -120,8 +120,8 @@ def main(argv: list[str] | None = None) -> int:
             code = int(args.func(args) or 0)
         sys.stdout.flush()  # a closed pipe shows here, not as "Exception ignored" at exit
         return code
-    except KeyboardInterrupt as e:
-        if isinstance(e, Terminated) or _TERMINATED:
+    except KeyboardInterrupt:
+        if _TERMINATED:  # set by the SIGTERM handler, whatever KeyboardInterrupt reached us
             print("terminated", file=sys.stderr)
             return 128 + signal.SIGTERM
         print("interrupted", file=sys.stderr)

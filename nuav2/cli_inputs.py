@@ -44,6 +44,15 @@ def out_path_problem(path: str | Path) -> str | None:
     return None
 
 
+def require_out_path(path: str | Path | None, flag: str = "--out") -> None:
+    """Refuse an unusable output path before the work: a UsageError naming ``flag`` and the path as given."""
+    from nuav2.cli import UsageError
+
+    problem = out_path_problem(path) if path else None
+    if problem:
+        raise UsageError(f"{flag} {path}: {problem}")
+
+
 def table_problem(dataroot: str | Path, version: str) -> str | None:
     """The first structural problem of ``dataroot/version``'s tables as one line naming the table
     file and the record, or None when the tables are well-formed."""

@@ -24,9 +24,17 @@ def writable_dir(path: str) -> bool:
         return False
 
 
+def may_write_in(path: str) -> bool:
+    """Whether ``path`` (or, where it does not exist yet, its nearest existing ancestor) is a folder
+    this process may write in: permission bits only, so the common case writes nothing at import."""
+    while not os.path.exists(path) and os.path.dirname(path) != path:
+        path = os.path.dirname(path)
+    return os.path.isdir(path) and os.access(path, os.W_OK | os.X_OK)
+
+
 def fallback_cache_dir(package_dir: str, env: Mapping[str, str]) -> str | None:
     """The ``NUMBA_CACHE_DIR`` to set, or None where numba's own places work (or one is set)."""
-    if env.get("NUMBA_CACHE_DIR") or writable_dir(os.path.join(package_dir, "__pycache__")):
+    if env.get("NUMBA_CACHE_DIR") or may_write_in(os.path.join(package_dir, "__pycache__")):
         return None
     user_cache = os.path.join(env.get("XDG_CACHE_HOME") or os.path.expanduser("~/.cache"), "numba")
     if writable_dir(user_cache):

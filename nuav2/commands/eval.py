@@ -101,16 +101,6 @@ def gt_file_classes(gts: dict, preds: dict) -> list[str]:
     return [*MAP_CLASSES, *sorted(seen - set(MAP_CLASSES))]
 
 
-def check_out(out: str | None) -> None:
-    """Refuse an unusable ``--out`` before the work, naming the path as given."""
-    from nuav2.cli import UsageError
-    from nuav2.cli_inputs import out_path_problem
-
-    problem = out_path_problem(out) if out else None
-    if problem:
-        raise UsageError(f"--out {out}: {problem}")
-
-
 def map_gt(args: argparse.Namespace) -> tuple[dict, str]:
     """(GT vectors, source description) from the database's map, for the chosen split."""
     from nuav2.cli_inputs import diagnosed_tables
@@ -125,11 +115,12 @@ def map_gt(args: argparse.Namespace) -> tuple[dict, str]:
 def _run(args: argparse.Namespace) -> int:
     from nuav2.atomic import atomic_write_json
     from nuav2.cli import UsageError
+    from nuav2.cli_inputs import require_out_path
     from nuav2.evaluate import MAP_CLASSES
     from nuav2.evaluate.chamfer_ap import evaluate_vectors
     from nuav2.evaluate.vector_files import load_gt_file, load_predictions
 
-    check_out(args.out)
+    require_out_path(args.out)
     if not args.gt_json:
         if not args.dataroot or not args.version:
             raise UsageError("--dataroot and --version are required (or give --gt-json)")

@@ -36,8 +36,5 @@ def run(args: argparse.Namespace) -> int:
                                devkit=args.devkit,
                                max_per_kind=args.max_per_kind,
                                progress=not args.quiet and sys.stderr.isatty())
-    code = 0 if report.ok else 1
     print(json.dumps(report.to_json(), indent=1) if args.json else report.format_text())
-    return code
-
-
+    return 0 if report.ok else 1

@@ -41,13 +41,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from nuav2.cli import UsageError, require_database
-    from nuav2.cli_inputs import diagnosed_tables, out_path_problem
+    from nuav2.cli import require_database
+    from nuav2.cli_inputs import diagnosed_tables, require_out_path
     from nuav2.viz import render
 
-    problem = out_path_problem(args.out)
-    if problem:
-        raise UsageError(f"--out {args.out}: {problem}")
+    require_out_path(args.out)
     require_database(args.dataroot, args.version)
     with diagnosed_tables(args.dataroot, args.version):
         out = render(

@@ -21,6 +21,7 @@ import signal
 import sys
 import threading
 import time
+from collections.abc import Iterator
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import replace
@@ -66,10 +67,19 @@ def exit_with_parent(parent_pid: int) -> None:
     threading.Thread(target=_watch_parent, args=(parent_pid,), daemon=True, name="watch-parent").start()
 
 
-def worker_pool(workers: int, initializer=None, initargs: tuple = ()) -> ProcessPoolExecutor:
-    """A pool of spawned processes that exit with this one (``initializer`` runs after that is set up)."""
-    return ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
+@contextlib.contextmanager
+def worker_pool(workers: int, initializer=None, initargs: tuple = ()) -> Iterator[ProcessPoolExecutor]:
+    """A pool of spawned processes that exit with this one (``initializer`` runs after that is set up),
+    shut down normally at the end, but on an interrupt (or any error) stopped at once: queued work
+    cancelled, workers sent SIGTERM (their cleanup runs), killed after a grace period."""
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
                                initializer=_init_worker, initargs=(os.getpid(), initializer, initargs))
+    try:
+        yield pool
+    except BaseException:
+        _stop_pool(pool)
+        raise
+    pool.shutdown(wait=True)
 
 
 def _init_worker(parent_pid: int, initializer, initargs: tuple) -> None:
@@ -79,19 +89,7 @@ def _init_worker(parent_pid: int, initializer, initargs: tuple) -> None:
         initializer(*initargs)
 
 
-@contextlib.contextmanager
-def stopped_on_interrupt(pool: ProcessPoolExecutor):
-    """``pool``, shut down normally at the end, but on an interrupt (or any error) stopped at once:
-    queued work cancelled, workers sent SIGTERM (their cleanup runs), killed after a grace period."""
-    try:
-        yield pool
-    except BaseException:
-        stop_pool(pool)
-        raise
-    pool.shutdown(wait=True)
-
-
-def stop_pool(pool: ProcessPoolExecutor, grace_s: float = EXIT_GRACE_S) -> None:
+def _stop_pool(pool: ProcessPoolExecutor, grace_s: float = EXIT_GRACE_S) -> None:
     processes = list((getattr(pool, "_processes", None) or {}).values())
     pool.shutdown(wait=False, cancel_futures=True)
     for proc in processes:
@@ -139,7 +137,7 @@ def _pool_round(jobs: list[Path], dataroot: Path, options, progress: BatchProgre
     """One pool over ``jobs``; returns the logs whose worker died (to retry), appends the others' results."""
     workers = min(options.workers, len(jobs))
     died: list[Path] = []
-    with stopped_on_interrupt(worker_pool(workers)) as pool:
+    with worker_pool(workers) as pool:
         pending = {pool.submit(run_one, d, dataroot, options, fault): d for d in jobs}
         while pending:
             progress.update(running=min(len(pending), workers))

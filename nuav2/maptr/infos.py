@@ -316,9 +316,9 @@ def scene_runner(maker_args: tuple, workers: int, executor: str, ray_address: st
 
         yield run_here
     else:
-        from nuav2.executors.local import stopped_on_interrupt, worker_pool
+        from nuav2.executors.local import worker_pool
 
-        with stopped_on_interrupt(worker_pool(workers, _init_worker_maker, (maker_args,))) as pool:
+        with worker_pool(workers, _init_worker_maker, (maker_args,)) as pool:
             yield lambda names, bar: _ordered(pool, names, workers, bar)
 
 
