@@ -14,7 +14,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from e2e_helpers import VERSION, cli
+from e2e_helpers import VERSION, cli, cli_bound_by_modes
 
 from nuav2.cli import main
 from nuav2.evaluate import MAP_CLASSES
@@ -305,14 +305,16 @@ def test_an_unusable_out_is_refused_before_the_work_naming_the_given_path(native
     assert list(folder.iterdir()) == []
 
 
-@pytest.mark.skipif(os.geteuid() == 0, reason="root may write in any folder")
 def test_an_out_in_a_read_only_folder_is_refused_before_the_work(native_synth_db, tmp_path):
     locked = tmp_path / "locked"
     locked.mkdir(mode=0o555)
     pred = _results(tmp_path / "pred.json", _sample_token(native_synth_db), [GOOD_VECTOR])
-    msg = _refused("eval", pred, "--dataroot", native_synth_db, "--version", VERSION,
-                   "--out", locked / "r.json")
+    code, _, err = cli_bound_by_modes("eval", pred, "--dataroot", native_synth_db, "--version", VERSION,
+                                      "--out", locked / "r.json")
+    assert code == 2, err
+    msg = _one_line(err)
     assert f"--out {locked / 'r.json'}" in msg and "cannot write" in msg
+    assert list(locked.iterdir()) == []
 
 
 def test_eval_out_into_a_new_folder_still_works(native_synth_db, tmp_path):
