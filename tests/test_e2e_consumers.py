@@ -125,6 +125,26 @@ def test_eval_scores_a_three_class_result_file_on_its_classes(db: Path, tmp_path
     assert code == 0 and json.loads(out)["mAP"] == pytest.approx(len(present) / 4)  # asked for: AP 0
 
 
+def test_eval_scores_a_class_the_model_lost_as_zero(db: Path, tmp_path: Path, caplog):
+    """A 4-class model whose file lost ped_crossing: MapTR averages its configured classes, so the lost
+    class scores AP 0 (leaving it out would score the model higher than MapTR does)."""
+    from nuav2.maptr.vectorize import gt_vectors_for_split
+
+    split = default_eval_split(db)
+    gts = gt_vectors_for_split(db, VERSION, split)
+    kept = ("divider", "boundary", "centerline")
+    pred = _results_file(tmp_path / "lost_ped.json", gts, kept)
+    code, out, err = cli("eval", pred, "--dataroot", db, "--version", VERSION, "--split", split, "--json")
+    assert code == 0, err
+    result = json.loads(out)
+    assert result["classes"] == ["divider", "ped_crossing", "boundary", "centerline"]
+    assert result["classes_left_out"] == []
+    assert any("ped_crossing" in r.getMessage() and "AP 0" in r.getMessage() for r in caplog.records)
+    assert result["class_mean_ap"]["ped_crossing"] == 0.0
+    present = [c for c in kept if result["num_gts"][c]]
+    assert result["mAP"] == pytest.approx(len(present) / 4)
+
+
 def test_viz_draws_a_converted_sample(db: Path, nusc, tmp_path: Path):
     import cv2
 

@@ -24,7 +24,7 @@ from nuav2.nuscenes_db.map_arclines import (
 )
 from nuav2.nuscenes_db.map_dividers import extract_dividers
 from nuav2.nuscenes_db.map_expansion import LIST_LAYERS, build_map_expansion, to_global, write_map_expansion
-from nuav2.nuscenes_db.map_frame import MapFrame, map_frame_for
+from nuav2.nuscenes_db.map_frame import MARGIN_M, MapFrame, map_frame_for
 from nuav2.nuscenes_db.map_polygons import densify, polyline_length
 from nuav2.scene import DrivableArea, LaneSegment, PedCrossing, VectorMap
 
@@ -104,7 +104,7 @@ def test_devkit_loads_all_layers(written, av2_map):
     # The true city coordinates stay recoverable.
     assert raw["nuav2"]["city_offset"] == frame.city_offset.tolist()
     nodes = np.array([[n["x"], n["y"]] for n in nmap.node])
-    assert nodes.min() >= 20.0 - 1e-9
+    assert nodes.min() >= MARGIN_M - 1e-9
     assert np.all(nodes[:, 0] < raw["canvas_edge"][0]) and np.all(nodes[:, 1] < raw["canvas_edge"][1])
 
 
@@ -406,11 +406,12 @@ def _write_and_load(vm: VectorMap, tmp_path: Path, offset=(0.0, 0.0)):
 def test_empty_map(tmp_path):
     art, nmap = _write_and_load(VectorMap("PIT", {}, {}, {}), tmp_path)
     assert all(len(getattr(nmap, layer)) == 0 for layer in LIST_LAYERS)
-    assert nmap.canvas_edge == [40.0, 40.0] and art.mask_shape == (400, 400)
+    edge = 2 * MARGIN_M
+    assert nmap.canvas_edge == [edge, edge] and art.mask_shape == (int(edge * 10), int(edge * 10))
     mm = MapMask(str(tmp_path / art.mask_filename))
     assert not mm.mask().any()
     assert all(not geoms for _, geoms in nmap.get_map_geom((20, 20, 10, 10), 0, ["drivable_area", "lane"]))
-    assert nmap.get_map_mask(None, 0.0, ["drivable_area"], None).shape == (1, 400, 400)
+    assert nmap.get_map_mask(None, 0.0, ["drivable_area"], None).shape == (1, *art.mask_shape)
     fig, _ = nmap.render_map_patch((0, 0, 40, 40), figsize=(2, 2), render_legend=False)
     matplotlib.pyplot.close(fig)
 

@@ -13,6 +13,7 @@ from av2.geometry.camera.pinhole_camera import PinholeCamera
 from av2.utils.io import read_city_SE3_ego, read_lidar_sweep
 from nuscenes.nuscenes import NuScenes
 from pyquaternion import Quaternion
+from scipy.spatial import cKDTree
 from test_writer_support import FIXTURE_SWEEP_NS
 
 from nuav2.nuscenes_db.categories import AV2_TO_NUSCENES
@@ -146,13 +147,18 @@ def test_devkit_float32_projection_agrees_to_a_tenth_of_a_millimetre(nusc: NuSce
             xyz_egoS, city_SE3_ego[_image_ns(nusc, sd)], city_SE3_ego[FIXTURE_SWEEP_NS])
         pts_cam = pts_cam_h[:, :3]
         w, h = pinhole.width_px, pinhole.height_px
-        keep = ((pts_cam[:, 2] > 1.0) & (uv_av2[:, 0] > 1) & (uv_av2[:, 0] < w - 1) & (uv_av2[:, 1] > 1)
-                & (uv_av2[:, 1] < h - 1))
+        # The devkit's filter, moved in (sure) or out (maybe) by 1e-3 px and m of depth: points within
+        # float32 rounding of its edges may fall either way.
+        u, v, z = uv_av2[:, 0], uv_av2[:, 1], pts_cam[:, 2]
+        sure, maybe = ((z > 1.0 + m) & (u > 1 + m) & (u < w - 1 - m) & (v > 1 + m) & (v < h - 1 - m)
+                       for m in (1e-3, -1e-3))
         pts, depth, _ = nusc.explorer.map_pointcloud_to_image(sample["data"]["LIDAR_TOP"], sd["token"])
-        assert pts.shape[1] == keep.sum() > 500
-        budget_px = pinhole.intrinsics.fx_px * 1e-4 / pts_cam[keep, 2]
-        assert np.all(np.abs(pts[:2].T - uv_av2[keep]).max(axis=1) <= budget_px)
-        assert np.abs(depth - pts_cam[keep, 2]).max() < 1e-4
+        assert sure.sum() <= pts.shape[1] <= maybe.sum() and sure.sum() > 500
+        assert maybe.sum() - sure.sum() <= 3
+        dist, k = cKDTree(uv_av2[maybe]).query(pts[:2].T)
+        budget_px = pinhole.intrinsics.fx_px * 1e-4 / pts_cam[maybe, 2][k]
+        assert np.all(dist <= budget_px)
+        assert np.abs(depth - pts_cam[maybe, 2][k]).max() < 1e-4
 
 
 def test_lidar_top_maps_back_to_the_av2_sweep(nusc: NuScenes, native_db: Path, imaged_log):

@@ -57,8 +57,15 @@ def resolve_split(dataroot: str, version: str, split: str | None) -> str:
     return split
 
 
+# MapTR's classes (its v1 configs and MapTRv2's 3-class ones); MapTRv2's centerline is the optional fourth.
+ALWAYS_SCORED = ("divider", "ped_crossing", "boundary")
+
+
 def choose_classes(preds: dict, classes: list[str] | None, pred_path: str) -> tuple[list[str], list[str]]:
-    """(classes to evaluate, classes left out): ``--classes`` if given, else those the file predicts."""
+    """(classes to evaluate, classes left out): ``--classes`` if given, else MapTR's three classes, each
+    scored AP 0 when the file never predicts it (MapTR averages its configured classes, so a model that
+    lost a class must not score higher than MapTR would score it), plus ``centerline`` when the file
+    predicts it (a 3-class MapTRv2 result file is scored on its three classes, as MapTR does)."""
     from nuav2.evaluate import MAP_CLASSES
     from nuav2.evaluate.chamfer_ap import predicted_classes
 
@@ -67,14 +74,14 @@ def choose_classes(preds: dict, classes: list[str] | None, pred_path: str) -> tu
     found, missing, unknown = predicted_classes(preds, MAP_CLASSES)
     if unknown:
         log.warning("%s: predicted class(es) %s have no GT class and are ignored", pred_path, unknown)
-    if not found:
-        log.warning("%s: no predictions of any class %s; all are evaluated (AP 0)", pred_path,
-                    list(MAP_CLASSES))
-        return list(MAP_CLASSES), []
-    if missing:
-        log.warning("%s: no prediction of class(es) %s: left out of the mAP (--classes includes them, "
-                    "as AP 0)", pred_path, missing)
-    return found, missing
+    zero = [c for c in missing if c in ALWAYS_SCORED]
+    if zero:
+        log.warning("%s: no prediction of class(es) %s: scored AP 0, as MapTR does", pred_path, zero)
+    left_out = [c for c in missing if c not in ALWAYS_SCORED]
+    if left_out:
+        log.warning("%s: no prediction of class(es) %s: left out of the mAP, as a 3-class MapTR model is "
+                    "scored (--classes includes them, as AP 0)", pred_path, left_out)
+    return [c for c in MAP_CLASSES if c not in left_out], left_out
 
 
 def check_classes(classes: list[str] | None, known: list[str], source: str) -> None:

@@ -22,7 +22,10 @@ import numpy as np
 
 from nuav2.geometry import F64, translation_T
 
-MARGIN_M = 20.0
+# The devkit's ego-centric underlay (render_sample_data(..., underlay_map=True), axes_limit 40 m by default)
+# crops sqrt(2) x axes_limit around the ego without clipping: an empty crop past the canvas edge. 80 m
+# serves axes limits up to 56 m.
+MARGIN_M = 80.0
 LOCATION_RE = re.compile(r"^av2-[a-z]{3}-[0-9a-f]{8}$")
 OFFSET_KEY = "city_offset"  # field name in nuav2_logs.json, shard meta and the expansion's nuav2 block
 

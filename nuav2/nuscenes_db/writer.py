@@ -46,7 +46,7 @@ from nuav2.threads import ordered_thread_map
 log = logging.getLogger(__name__)
 
 # Bump when what a shard holds changes, so old shards are redone instead of merged.
-WRITER_FORMAT = 2  # 2: global frame shifted in z too (city_offset [x, y, z])
+WRITER_FORMAT = 3  # 2: global frame shifted in z too (city_offset [x, y, z]); 3: 80 m map margin
 
 
 @dataclass(frozen=True)
