@@ -165,13 +165,13 @@ def test_infos_have_maptr_fields_for_every_split_keyframe(infos, nusc, synthetic
                 assert cam["sensor2lidar_rotation"].shape == (3, 3) and cam["cam_intrinsic"].shape == (3, 3)
 
 
-def test_info_can_bus_is_zero_but_for_the_pose_fields(infos):
+def test_info_can_bus_holds_the_pose_fields_and_an_accelerometer_reading(infos):
     info = infos["all"]["infos"][2]
     cb = info["can_bus"]
     assert cb.shape == (18,)
     np.testing.assert_allclose(cb[:3], info["ego2global_translation"])
     np.testing.assert_allclose(cb[3:7], info["ego2global_rotation"])
-    assert np.all(cb[7:16] == 0)
+    assert cb[9] == pytest.approx(9.81, abs=0.5) and np.all(np.isfinite(cb))  # gravity on a near-level car
     yaw = Quaternion(info["ego2global_rotation"]).yaw_pitch_roll[0]
     assert cb[-1] == pytest.approx(np.degrees(yaw) % 360.0) and cb[-2] == pytest.approx(np.radians(cb[-1]))
 

@@ -35,7 +35,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--path-root",
         default="",
-        help="prefix written instead of DATAROOT in file paths (e.g. ./data/nuav2 for MapTR)",
+        help="prefix written instead of DATAROOT in file paths, kept as given (e.g. ./data/nuav2 for MapTR)",
+    )
+    p.add_argument(
+        "--cameras",
+        nargs="+",
+        default=None,
+        metavar="CH",
+        help="camera channels in this order (default: nuScenes' six in MapTR's order, else AV2's seven ring "
+        "cameras in MapTR's AV2 order, else every camera sorted by name)",
     )
     p.add_argument("--workers", type=positive_int, default=1,
                    help="processes (or Ray actors) making the records, each holding the tables in memory; "
@@ -47,14 +55,36 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
+def check_cameras(dataroot: Path, version: str, cameras: list[str] | None) -> None:
+    """Refuse a ``--cameras`` channel twice or not a camera of the sensor table, before any work
+    (a sample that lacks one is refused during the work, naming the sample)."""
+    from nuav2.cli import UsageError
+
+    if not cameras:
+        return
+    twice = sorted({c for c in cameras if cameras.count(c) > 1})
+    if twice:
+        raise UsageError(f"--cameras: {', '.join(twice)} given more than once")
+    try:
+        sensors = json.loads((Path(dataroot) / version / "sensor.json").read_text())
+        known = sorted(s["channel"] for s in sensors if s.get("modality") == "camera")
+    except (OSError, ValueError, TypeError, KeyError, AttributeError):
+        return  # a damaged table is diagnosed (naming the file) when the work reads it
+    missing = [c for c in cameras if c not in known]
+    if missing:
+        raise UsageError(f"--cameras: no camera channel {', '.join(missing)} in {dataroot}/{version}; "
+                         f"its cameras: {', '.join(known) or 'none'}")
+
+
 def run(args: argparse.Namespace) -> int:
     from nuav2.cli import UsageError, require_database
     from nuav2.cli_inputs import diagnosed_tables
     from nuav2.devkit_compat import HOOK_DIR
     from nuav2.executors.ray_tasks import RayMissingError
-    from nuav2.maptr.infos import export_infos
+    from nuav2.maptr.infos import MissingCameraError, export_infos
 
     require_database(args.dataroot, args.version)
+    check_cameras(args.dataroot, args.version, args.cameras)
     try:
         with diagnosed_tables(args.dataroot, args.version):
             written = export_infos(
@@ -66,6 +96,7 @@ def run(args: argparse.Namespace) -> int:
                 args.max_sweeps,
                 tuple(args.patch),
                 args.path_root,
+                cameras=args.cameras,
                 workers=args.workers,
                 executor=args.executor,
                 ray_address=args.ray_address,
@@ -73,6 +104,8 @@ def run(args: argparse.Namespace) -> int:
             )
     except RayMissingError as e:
         raise UsageError(str(e)) from e
+    except MissingCameraError as e:
+        raise UsageError(f"--cameras: {e}") from e
     print(json.dumps({split: str(path) for split, path in written.items()}, indent=1))
     # MapTR's own tools run in an older stack where nuav2 is not installed; this lets them open the maps.
     print(f"MapTR's tools (nuscenes-devkit 1.1.x) open the av2-* map locations with PYTHONPATH={HOOK_DIR}",

@@ -1,10 +1,11 @@
 """MapTRv2 info ``.pkl`` export: the per-keyframe records MapTRv2's own training code reads.
 
 Fields follow MapTRv2's ``custom_nusc_map_converter`` (see docs/maptr.md): sample links and
-time, LIDAR_TOP path and pose, up to 10 previous LIDAR_TOP sweeps, six cameras each with its
-own ego pose and its ``sensor2lidar`` transform (p_lidar = R p_cam + t), a zeros(18) CAN bus
-with the pose fields MapTR's dataset fills, the map location, and the vectorized GT in the
-LIDAR_TOP frame under ``annotation``. Split membership comes from ``<version>/splits.json``
+time, LIDAR_TOP path and pose, up to 10 previous LIDAR_TOP sweeps, the cameras (a fixed rig order)
+each with its own ego pose and its ``sensor2lidar`` transform (p_lidar = R p_cam + t), an
+18-value CAN bus (pose, and acceleration / rotation rate / velocity from neighbouring LIDAR_TOP
+poses, since AV2 has no CAN bus), the map location, and the vectorized GT in the LIDAR_TOP frame
+under ``annotation``. Split membership comes from ``<version>/splits.json``
 instead of the devkit's hard-coded nuScenes scene lists. ``sample_info`` is shared with the
 torch dataset, so both see the same poses.
 """
@@ -17,13 +18,14 @@ import itertools
 import json
 import logging
 import math
+import os
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 import numpy as np
 
 from nuav2.atomic import atomic_file
-from nuav2.geometry import F64, T_from_quat_trans, T_inverse, quat_to_rot, yaw_of
+from nuav2.geometry import F64, T_from_quat_trans, T_inverse, quat_to_rot, rot_to_quat, yaw_of
 from nuav2.maptr.info_pickle import InfoPickleStream, record_bytes
 from nuav2.maptr.subsets import available_splits, scene_sample_tokens, split_scene_names
 from nuav2.maptr.vectorize import CLASSES, DEFAULT_PATCH, MapGT
@@ -38,9 +40,24 @@ NUSCENES_CAMERAS = (
     "CAM_BACK_LEFT",
     "CAM_BACK_RIGHT",
 )
+# MapTR's AV2 converter (CAM_NAMES): the ring in this order, stereo left out.
+AV2_RING_CAMERAS = (
+    "ring_front_center",
+    "ring_front_right",
+    "ring_front_left",
+    "ring_rear_right",
+    "ring_rear_left",
+    "ring_side_right",
+    "ring_side_left",
+)
 LIDAR_CHANNEL = "LIDAR_TOP"
 MAX_SWEEPS = 10
 CAN_BUS_SIZE = 18
+GRAVITY_MPS2 = 9.81  # what a level accelerometer at rest reads on +z (nuScenes' CAN pose accel does)
+
+
+class MissingCameraError(ValueError):
+    """A requested camera channel is not in a sample (the CLI names ``--cameras``)."""
 
 
 def info_filename(prefix: str, split: str) -> str:
@@ -48,19 +65,23 @@ def info_filename(prefix: str, split: str) -> str:
 
 
 def camera_channels(nusc, sample: dict, cameras: Sequence[str] | None = None) -> list[str]:
-    """The requested cameras, else nuScenes' six in MapTR's order when all are present, else every
-    camera channel of the sample (e.g. AV2's ring in native mode) sorted by name."""
+    """The requested cameras, else a fixed rig order (MapTR's per-camera embeddings are indexed by
+    position): nuScenes' six in MapTR's order, else AV2's seven ring cameras in MapTR's AV2 order
+    (stereo left out, as MapTR's AV2 converter does), else every camera channel sorted by name."""
+    data = sample["data"]
     if cameras is not None:
-        missing = [c for c in cameras if c not in sample["data"]]
+        missing = [c for c in cameras if c not in data]
         if missing:
-            raise ValueError(
-                f"{nusc.dataroot}/{nusc.version}: sample {sample['token']} lacks cameras {missing}"
+            raise MissingCameraError(
+                f"{nusc.dataroot}/{nusc.version}: sample {sample['token']} lacks camera(s) "
+                f"{', '.join(missing)}"
             )
         return list(cameras)
-    if all(c in sample["data"] for c in NUSCENES_CAMERAS):
-        return list(NUSCENES_CAMERAS)
+    for rig in (NUSCENES_CAMERAS, AV2_RING_CAMERAS):
+        if all(c in data for c in rig):
+            return list(rig)
     present = []
-    for ch, sd_token in sample["data"].items():
+    for ch, sd_token in data.items():
         sd = nusc.get("sample_data", sd_token)
         if nusc.get("calibrated_sensor", sd["calibrated_sensor_token"])["camera_intrinsic"]:
             present.append(ch)
@@ -71,18 +92,87 @@ def _pose_T(record: dict) -> F64:
     return T_from_quat_trans(record["rotation"], record["translation"])
 
 
-def can_bus_from_pose(translation: Sequence[float], rotation_wxyz: Sequence[float]) -> F64:
-    """zeros(18) with what MapTR's dataset writes into it: [0:3] ego t, [3:7] ego q (wxyz),
-    [-2] yaw in rad and [-1] in degrees, both taken in [0, 360) as MapTR does."""
+def can_bus_from_pose(
+    translation: Sequence[float], rotation_wxyz: Sequence[float], motion: Sequence[float] | None = None
+) -> F64:
+    """The 18 values in the layout of MapTR's nuScenes converter: [0:3] ego t, [3:7] ego q (wxyz),
+    [7:16] ``motion`` (accel, rotation rate, velocity; see :func:`ego_motion`), zeros if None,
+    [-2] yaw in rad in [0, 2 pi) and [-1] in degrees in [0, 360), as MapTR's dataset writes them."""
     can_bus = np.zeros(CAN_BUS_SIZE)
     can_bus[:3] = translation
     can_bus[3:7] = rotation_wxyz
+    if motion is not None:
+        can_bus[7:16] = motion
     yaw_deg = math.degrees(yaw_of(quat_to_rot(rotation_wxyz)))
     if yaw_deg < 0:
         yaw_deg += 360.0
     can_bus[-2] = yaw_deg / 180.0 * math.pi
     can_bus[-1] = yaw_deg
     return can_bus
+
+
+def rotation_vector(R: F64) -> F64:
+    """Log map of a rotation matrix (axis * angle, rad): closed form from the skew part, which is
+    exact and cheap for the small rotations between sweeps; the quaternion route past 90 degrees."""
+    s = 0.5 * np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])  # sin(angle) * axis
+    c = 0.5 * (R[0, 0] + R[1, 1] + R[2, 2] - 1.0)  # cos(angle)
+    sin_angle = float(np.linalg.norm(s))
+    if c > 0.0:
+        return s * (math.atan2(sin_angle, c) / sin_angle) if sin_angle > 1e-15 else s
+    q = rot_to_quat(R)  # w >= 0
+    v = q[1:]
+    return v * (2.0 * math.atan2(float(np.linalg.norm(v)), float(q[0])) / float(np.linalg.norm(v)))
+
+
+def ego_motion(times_s: Sequence[float], global_T_ego: Sequence[F64] | F64, index: int) -> F64:
+    """[acceleration (3), rotation rate (3), velocity (3)] of pose ``index`` in its ego frame, the
+    fields nuScenes' CAN pose message holds (m/s^2, rad/s, m/s), by finite differences of poses at
+    strictly increasing ``times_s``: central where both neighbours exist, one-sided at the ends
+    (the acceleration from the three end poses). The acceleration is what an accelerometer reads
+    (specific force, gravity included: [0, 0, 9.81] level at rest), so the values look like the CAN
+    bus MapTR's nuScenes converter stores. With a single pose, rate and velocity are zero and the
+    acceleration is gravity's reading alone (so too the acceleration with two poses)."""
+    n = len(times_s)
+    t = np.asarray(times_s, dtype=np.float64)
+    global_T = np.asarray(global_T_ego, dtype=np.float64)
+    ego_R_global = global_T[index, :3, :3].T
+    motion = np.zeros(9)
+    lo, hi = max(index - 1, 0), min(index + 1, n - 1)
+    if hi > lo:
+        dt = t[hi] - t[lo]
+        lo_R_hi = global_T[lo, :3, :3].T @ global_T[hi, :3, :3]
+        # The rotation vector is in the ego frame at ``lo``; moved into the frame at ``index``.
+        motion[3:6] = ego_R_global @ global_T[lo, :3, :3] @ (rotation_vector(lo_R_hi) / dt)
+        motion[6:9] = ego_R_global @ ((global_T[hi, :3, 3] - global_T[lo, :3, 3]) / dt)
+    accel_global = np.array([0.0, 0.0, GRAVITY_MPS2])
+    if n >= 3:
+        i = min(max(index - 1, 0), n - 3)  # first of the three poses nearest to ``index``
+        (t0, t1, t2), (p0, p1, p2) = t[i : i + 3], global_T[i : i + 3, :3, 3]
+        accel_global += 2.0 / (t2 - t0) * ((p2 - p1) / (t2 - t1) - (p1 - p0) / (t1 - t0))
+    motion[0:3] = ego_R_global @ accel_global
+    return motion
+
+
+def _chain_motion(nusc, lidar_sd: dict) -> F64:
+    """:func:`ego_motion` of a keyframe's LIDAR_TOP pose from its sample_data chain (10 Hz sweeps):
+    its neighbours, or the two next to it on the one side there is; out-of-order times are left out."""
+    before = [nusc.get("sample_data", lidar_sd["prev"])] if lidar_sd["prev"] else []
+    after = [nusc.get("sample_data", lidar_sd["next"])] if lidar_sd["next"] else []
+    if after and not before and after[0]["next"]:
+        after.append(nusc.get("sample_data", after[0]["next"]))
+    if before and not after and before[0]["prev"]:
+        before.append(nusc.get("sample_data", before[0]["prev"]))
+    chain = [lidar_sd]
+    for sd in before:
+        if sd["timestamp"] < chain[0]["timestamp"]:
+            chain.insert(0, sd)
+    index = len(chain) - 1
+    for sd in after:
+        if sd["timestamp"] > chain[-1]["timestamp"]:
+            chain.append(sd)
+    poses = [nusc.get("ego_pose", sd["ego_pose_token"]) for sd in chain]
+    global_T_ego = T_from_quat_trans([p["rotation"] for p in poses], [p["translation"] for p in poses])
+    return ego_motion([sd["timestamp"] * 1e-6 for sd in chain], global_T_ego, index)
 
 
 def _sensor_info(nusc, sd_token: str, lidar_T_global: F64, path_root: str, kind: str) -> dict:
@@ -110,13 +200,14 @@ def _sensor_info(nusc, sd_token: str, lidar_T_global: F64, path_root: str, kind:
 
 
 def _data_path(nusc, path_root: str, filename: str) -> str:
-    """Where the file is, written under ``path_root`` (the dataroot by default) as MapTR expects."""
-    disk = Path(nusc.dataroot) / filename
-    if not disk.is_file():
+    """Where the file is, written under ``path_root`` (the dataroot by default) exactly as given:
+    MapTR's own infos hold ``./data/nuscenes/...``, which pathlib would shorten to ``data/...``."""
+    disk = os.path.join(nusc.dataroot, filename)
+    if not os.path.isfile(disk):
         raise FileNotFoundError(
             f"{disk}: referenced by sample_data in {nusc.dataroot}/{nusc.version} but missing"
         )
-    return str(Path(path_root) / filename) if path_root else str(disk)
+    return os.path.join(path_root, filename) if path_root else disk
 
 
 def sample_info(
@@ -141,7 +232,8 @@ def sample_info(
         "token": sample_token,
         "prev": sample["prev"],
         "next": sample["next"],
-        "can_bus": can_bus_from_pose(lidar_ego["translation"], lidar_ego["rotation"]),
+        "can_bus": can_bus_from_pose(lidar_ego["translation"], lidar_ego["rotation"],
+                                     _chain_motion(nusc, lidar_sd)),
         "frame_idx": frame_idx,
         "sweeps": [],
         "cams": {},
@@ -200,14 +292,15 @@ class SceneInfoMaker:
         self.gt = MapGT(dataroot, patch)
         self.max_sweeps, self.cameras, self.path_root = max_sweeps, cameras, path_root
 
-    def scene(self, scene_name: str) -> tuple[bytes, int, list[tuple[str, int]]]:
-        """(record bytes of the keyframes in time order, their count, (scene token, timestamp) of each)."""
+    def scene(self, scene_name: str) -> tuple[bytes, int, list[tuple[str, int, int]]]:
+        """(record bytes of the keyframes in time order, their count, (scene token, timestamp, number of
+        cameras) of each)."""
         parts, times = [], []
         for frame_idx, tok in enumerate(scene_sample_tokens(self.nusc, scene_name)):
             info = sample_info(self.nusc, tok, frame_idx, self.max_sweeps, self.cameras, self.path_root)
             info["annotation"] = annotation_of(self.gt.sample_vectors(self.nusc, tok))
             parts.append(record_bytes(info))
-            times.append((info["scene_token"], info["timestamp"]))
+            times.append((info["scene_token"], info["timestamp"], len(info["cams"])))
         cached = self.gt._by_location  # MapGT's lazy per-location cache, bounded here
         while len(cached) > MAX_CACHED_MAPS:
             cached.pop(next(iter(cached)))
@@ -270,6 +363,8 @@ def export_infos(
     maker_args = (str(dataroot), version, tuple(patch), max_sweeps,
                   tuple(cameras) if cameras else None, path_root)
     written: dict[str, Path] = {}
+    keyframes: set[tuple[str, int]] = set()
+    no_camera: set[tuple[str, int]] = set()
     with scene_runner(maker_args, workers, executor, ray_address) as run_scenes:
         for split, names in jobs.items():
             path = Path(out_dir) / info_filename(prefix, split)
@@ -280,7 +375,9 @@ def export_infos(
                     stream = InfoPickleStream(f)
                     for records, count, scene_times in run_scenes(names, bar):
                         stream.add(records, count)
-                        times += [{"scene_token": s, "timestamp": t} for s, t in scene_times]
+                        times += [{"scene_token": s, "timestamp": t} for s, t, _ in scene_times]
+                        keyframes.update((s, t) for s, t, _ in scene_times)
+                        no_camera.update((s, t) for s, t, n_cams in scene_times if not n_cams)
                     stream.close({"version": version})
             finally:
                 bar.close()
@@ -292,6 +389,12 @@ def export_infos(
                 )
             log.info("wrote %s (%d samples)", path, stream.count)
             written[split] = path
+    if no_camera:
+        log.warning(
+            "%s/%s: %d of %d keyframes have no camera (cams == {}): MapTR's image pipeline cannot use "
+            "them; convert the logs with their cameras",
+            dataroot, version, len(no_camera), len(keyframes),
+        )
     return written
 
 
