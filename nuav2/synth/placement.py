@@ -1,10 +1,11 @@
 """Where things stand and go in a layout: buildings, parked and moving vehicles, pedestrians,
 cyclists and street furniture, placed along a :class:`~nuav2.synth.layouts.StreetPlan`.
 
-Moving actors follow lane routes at constant speed and are timed around the ego's position at
-mid-log (a lead car ahead on the ego's route, oncoming traffic, traffic leaving the junction),
-so a short log still sees them; pedestrians walk along sidewalks, cyclists ride near the kerb of
-lanes the ego does not use. Everything draws from the random stream it is given.
+Moving vehicles follow lane routes at a cruising speed, slowing for tight turns, and are timed
+around the ego's position at mid-log (a lead car ahead on the ego's route, oncoming traffic,
+traffic leaving the junction), so a short log still sees them; pedestrians walk along sidewalks,
+cyclists ride near the kerb of lanes the ego does not use. Everything draws from the random
+stream it is given.
 """
 
 from __future__ import annotations
@@ -22,7 +23,15 @@ from nuav2.synth.buildings import footprint
 from nuav2.synth.config import SynthConfig
 from nuav2.synth.layouts import SIDEWALK_W, StreetPlan
 from nuav2.synth.legacy import CAR_COLORS, SHIRT_COLORS, ActorTrack, EgoTrajectory, car, uuid4
-from nuav2.synth.motion import PathMotion, build_route, junction_lanes, lane_centre
+from nuav2.synth.motion import (
+    ACCEL,
+    PATH_SMOOTH_M,
+    TURN_LAT_ACCEL,
+    PathMotion,
+    build_route,
+    junction_lanes,
+    lane_centre,
+)
 from nuav2.synth.road import RoadLayout
 from nuav2.synth.shapes import (
     CYCLIST_SIZE,
@@ -89,6 +98,28 @@ def _constant(path: F64, s_mid: float, speed: float, duration: float, lat: float
     t = np.arange(-0.2, duration + 1.0 + 1e-9, 0.05)
     s = s_mid + speed * (t - duration / 2)
     return PathMotion(path, t, s, np.full_like(t, lat))
+
+
+def _driven(path: F64, s_mid: float, speed: float, duration: float, lat: float = 0.0) -> PathMotion:
+    """A vehicle on ``path`` at ``speed``, slowing where the path (as it is followed, smoothed) curves so
+    tightly that the lateral acceleration would pass ``TURN_LAT_ACCEL``, braking and speeding up at
+    ``ACCEL``; at ``s_mid`` at mid-log. On a straight path it is :func:`_constant`."""
+    reach = speed * (duration / 2 + 1.5) + 5.0  # at most this far either side of s_mid in the table
+    grid = np.arange(s_mid - reach, s_mid + reach + 0.25, 0.25)
+    _, d1, d2 = pl.smooth(path, grid, PATH_SMOOTH_M)
+    kappa = np.abs(d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]) / np.linalg.norm(d1, axis=1) ** 3
+    if not np.any(kappa * speed**2 > TURN_LAT_ACCEL):
+        return _constant(path, s_mid, speed, duration, lat)
+    v = np.minimum(speed, np.sqrt(TURN_LAT_ACCEL / np.maximum(kappa, 1e-12)))
+    ds = np.diff(grid)
+    for i in range(1, len(v)):  # speeding up after a turn
+        v[i] = min(v[i], np.sqrt(v[i - 1] ** 2 + 2.0 * ACCEL * ds[i - 1]))
+    for i in range(len(v) - 2, -1, -1):  # braking before one
+        v[i] = min(v[i], np.sqrt(v[i + 1] ** 2 + 2.0 * ACCEL * ds[i]))
+    t_at = np.concatenate([[0.0], np.cumsum(2.0 * ds / (v[1:] + v[:-1]))])  # exact for v linear in t
+    t_at += duration / 2 - np.interp(s_mid, grid, t_at)
+    t = np.arange(-0.2, duration + 1.0 + 1e-9, 0.05)
+    return PathMotion(path, t, np.interp(t, t_at, grid), np.full_like(t, lat))
 
 
 def _footprint_at(a: ActorTrack, t: float) -> Polygon:
@@ -237,24 +268,24 @@ def place_actors(
         if role == "lead":
             lat = float(ego.lat[-1])
             v = float(np.max(np.gradient(ego.s, ego.t))) * rng.uniform(1.0, 1.08)
-            motion = _constant(
+            motion = _driven(
                 ego.path, ego_s_mid + 24.0 + 15.0 * rank + rng.uniform(0, 8) + size[0] / 2, v, duration, lat
             )
         elif role == "oncoming" and oncoming:
             ln = oncoming[(rank + int(rng.integers(len(oncoming)))) % len(oncoming)][0]
             path, s_near = _route_at(layout, ln.id, p_mid)
-            motion = _constant(path, s_near + rng.uniform(-40.0, 10.0), rng.uniform(7.0, 11.0), duration)
+            motion = _driven(path, s_near + rng.uniform(-40.0, 10.0), rng.uniform(7.0, 11.0), duration)
         elif juncs:
             via = juncs[int(rng.integers(len(juncs)))]
             route = build_route(layout, via.id)
             s0, s1 = route.marks[via.id]
-            motion = _constant(route.path, s1 + rng.uniform(8.0, 30.0), rng.uniform(5.0, 9.0), duration)
+            motion = _driven(route.path, s1 + rng.uniform(8.0, 30.0), rng.uniform(5.0, 9.0), duration)
         else:  # one road: a same-direction neighbour lane, well ahead of or behind the ego
             beside = [x for x in near if x[1] @ f_mid > 0.5 and x[2] > 2.5] or oncoming or near
             ln = beside[(rank + int(rng.integers(len(beside)))) % len(beside)][0]
             path, s_near = _route_at(layout, ln.id, p_mid)
             v = float(np.max(np.gradient(ego.s, ego.t))) * rng.uniform(1.0, 1.15)  # stays ahead of the ego
-            motion = _constant(path, s_near + rng.uniform(20.0, 45.0), v, duration)
+            motion = _driven(path, s_near + rng.uniform(20.0, 45.0), v, duration)
         cand = _moving(uuid4(rng), category, KIND_VEHICLE, size, color, motion, body)
         if clear_of(cand, actors, ego_box, duration):
             actors.append(cand)
@@ -315,7 +346,7 @@ def place_cyclists(
             break
         ln = outer[int(rng.integers(len(outer)))][0]
         path, s_near = _route_at(layout, ln.id, ego_mid)
-        motion = _constant(path, s_near + rng.uniform(-30.0, 30.0), rng.uniform(4.0, 6.5), duration, -1.0)
+        motion = _driven(path, s_near + rng.uniform(-30.0, 30.0), rng.uniform(4.0, 6.5), duration, -1.0)
         shirt = SHIRT_COLORS[rng.integers(len(SHIRT_COLORS))]
         frame = FRAME_COLORS[rng.integers(len(FRAME_COLORS))]
         cand = _moving(uuid4(rng), "BICYCLIST", KIND_PEDESTRIAN, CYCLIST_SIZE, shirt, motion, "cyclist",
