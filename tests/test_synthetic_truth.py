@@ -3,6 +3,8 @@ points (solid lane paint on the terrain surface, pole tops) to within 1 px, on s
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 import pytest
 import shapely
@@ -21,10 +23,25 @@ from nuav2.synth.texture import DOUBLE_GAP
 SEEDS = {"easy": 0, "medium": 1, "hard": 3}
 
 
+@functools.cache
+def _world(preset: str):
+    cfg = SynthConfig.for_preset(preset, seconds=1.0, map_margin_m=20.0)
+    return build_world(SEEDS[preset], cfg)
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _release_worlds():
+    yield
+    _world.cache_clear()
+
+
 @pytest.fixture(scope="module", params=PRESETS)
 def world(request):
-    cfg = SynthConfig.for_preset(request.param, seconds=1.0, map_margin_m=20.0)
-    return build_world(SEEDS[request.param], cfg)
+    return _world(request.param)
+
+
+# Presets with street furniture (easy's box corners are checked by test_synthetic_render).
+FURNISHED = [p for p in PRESETS if SynthConfig.for_preset(p).content]
 
 
 def paint_points(world) -> tuple[np.ndarray, np.ndarray]:
@@ -159,13 +176,11 @@ def test_lane_paint_projects_within_one_pixel(world):
         assert np.max(np.abs(pitch)) > np.deg2rad(0.5)  # and the log's cameras were pitched
 
 
-def test_pole_tops_project_within_one_pixel(world):
+@pytest.mark.parametrize("preset", FURNISHED)
+def test_pole_tops_project_within_one_pixel(preset):
     """A probe camera below and beside each pole top: the pole fills the pixels from 1.5 px under
     the projected top down, and nothing of it shows 1.5 px above."""
-    if not world.config.content:
-        pytest.skip(
-            "no street furniture without the content factor (easy's box corners: test_synthetic_render)"
-        )
+    world = _world(preset)
     f = world.furniture
     # Street-light posts (7-9 m): their arm ends 6 cm under the top, across the view.
     poles = np.flatnonzero(
