@@ -97,6 +97,9 @@ def test_split_lists_with_some_unknown_entries_still_split_and_say_so(native_syn
     assert json.loads(out)["new"]["unmatched_entries"] == ["scene-nope"]
     assert json.loads((db / VERSION / "splits.json").read_text())["geo_train"] == [scene]
     assert any("scene-nope" in r.getMessage() and str(lists) in r.getMessage() for r in caplog.records)
+    # The empty holdouts are the lists' doing, not --min-distance's.
+    empty = [r.getMessage() for r in caplog.records if "no scene in val and test" in r.getMessage()]
+    assert len(empty) == 1 and f"--lists {lists}" in empty[0] and "--min-distance" not in empty[0]
 
 
 def test_split_lists_with_a_bad_key_name_the_file(native_synth_db, tmp_path):

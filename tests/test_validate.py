@@ -299,9 +299,19 @@ def test_devkit_flag_opens_the_map_like_maptr(tiny_db: Path, tmp_path: Path) -> 
 
 
 def test_version_folder_missing(tiny_db: Path, capsys) -> None:
+    """A missing folder is bad input like for every command: one line on stderr, exit 2."""
     rc = main(["validate", str(tiny_db), "--version", "v9-none", "--quiet"])
-    assert rc == 1
-    assert "version directory not found" in capsys.readouterr().out
+    out, err = capsys.readouterr()
+    assert rc == 2 and out == ""
+    assert err.strip().count("\n") == 0 and "--version v9-none" in err and VERSION in err
+    rc = main(["validate", str(tiny_db / "nope"), "--version", VERSION, "--quiet"])
+    assert rc == 2 and "dataroot not found" in capsys.readouterr().err
+
+
+def test_version_folder_without_tables_is_a_report(tmp_path: Path, capsys) -> None:
+    (tmp_path / "v1").mkdir()
+    rc = main(["validate", str(tmp_path), "--version", "v1", "--quiet"])
+    assert rc == 1 and "FAIL" in capsys.readouterr().out
 
 
 def test_problems_are_capped_per_kind_but_all_counted(tiny_db: Path, tmp_path: Path, capsys) -> None:

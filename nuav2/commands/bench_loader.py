@@ -27,7 +27,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="nuScenes-format dataroot (default: convert a fresh synthetic AV2 log)",
     )
     p.add_argument("--version", default="v1.0-nuav2", help="table folder under DATAROOT")
-    p.add_argument("--split", default=None, help="split to read (default: the first in splits.json)")
+    p.add_argument("--split", default=None,
+                   help="split to read (default: the alphabetically first in splits.json, usually all)")
     p.add_argument("--samples", type=positive_int, default=50, help="keyframes to time, >= 1")
     p.add_argument("--image-scale", type=positive_float, default=1.0,
                    help="resize images by this factor, > 0")

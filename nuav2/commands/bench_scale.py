@@ -22,14 +22,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--logs", type=positive_int, default=4,
                    help="synthetic logs to convert, >= 1 (default: %(default)s)")
     p.add_argument("--seconds", type=synth_seconds, default=2.0,
-                   help="length of each log, > 0.05 (10 sweeps/s)")
+                   help="length of each log, > 0.05 (10 sweeps/s; default: %(default)s)")
     p.add_argument("--image-scale", type=synth_image_scale, default=0.125,
-                   help="source camera resolution factor vs AV2, > 0")
+                   help="source camera resolution factor vs AV2, > 0 (default: %(default)s)")
     p.add_argument("--scale", type=positive_float, default=0.125,
-                   help="warp: target rig resolution factor, > 0")
+                   help="warp: target rig resolution factor, > 0 (default: %(default)s)")
     p.add_argument("--modes", nargs="+", default=["native", "warp"], choices=["native", "warp", "render"])
     p.add_argument("--repeats", type=positive_int, default=2,
-                   help="interleaved repeats, >= 1; the fastest counts")
+                   help="interleaved repeats, >= 1; the fastest counts (default: %(default)s)")
     p.add_argument("--json", action="store_true", help="print compact JSON (the default is indented JSON)")
     p.set_defaults(func=run)
 

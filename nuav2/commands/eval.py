@@ -162,7 +162,7 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def register(subparsers) -> None:
-    from nuav2.evaluate import MAP_CLASSES, MAP_THRESHOLDS_M
+    from nuav2.evaluate import MAP_THRESHOLDS_M
 
     p = subparsers.add_parser("eval", help="chamfer-distance AP / mAP of map predictions (MapTR protocol)")
     p.add_argument("pred", help="predictions: MapTR nuscmap_results.json ({'meta', 'results': [...]})")
@@ -183,8 +183,8 @@ def register(subparsers) -> None:
         help="GT patch size in the LIDAR_TOP frame (default 60 30)",
     )
     p.add_argument("--classes", nargs="+", default=None,
-                   help=f"classes the mAP averages (default: those of {', '.join(MAP_CLASSES)} that the "
-                        "result file predicts at all; the others are left out with a warning)")
+                   help="classes the mAP averages (default: divider, ped_crossing, boundary, each AP 0 "
+                        "if never predicted, as MapTR scores them, plus centerline if the file predicts it)")
     p.add_argument("--thresholds", type=number(float, lo=0, hi=100, lo_open=True, hi_open=True), nargs="+",
                    default=list(MAP_THRESHOLDS_M), help="chamfer distance thresholds in metres, in (0, 100)")
     p.add_argument("--n-resample", type=number(int, *N_RESAMPLE_RANGE), default=100,

@@ -20,7 +20,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("dataroot", type=Path, help="nuScenes-format dataroot")
     p.add_argument("--version", required=True, help="table folder under DATAROOT")
     p.add_argument("--out", required=True, type=Path, help="directory for the .pkl files")
-    p.add_argument("--prefix", default="nuav2", help="file name prefix (MapTR uses 'nuscenes')")
+    p.add_argument("--prefix", default="nuav2",
+                   help="file name prefix (default: %(default)s; MapTR uses 'nuscenes')")
     p.add_argument("--splits", nargs="+", default=None, help="split names (default: all in splits.json)")
     p.add_argument("--max-sweeps", type=non_negative_int, default=10,
                    help="previous LIDAR_TOP sweeps per keyframe (>= 0; default 10)")
@@ -30,7 +31,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         nargs=2,
         default=(60.0, 30.0),
         metavar=("FORWARD_M", "SIDE_M"),
-        help="map patch size along lidar y (forward) and x (right)",
+        help="map patch size along lidar y (forward) and x (right) (default: 60 30)",
     )
     p.add_argument(
         "--path-root",

@@ -16,13 +16,20 @@ log = logging.getLogger(__name__)
 
 
 def _warn_empty_holdout(result: dict, n_scenes: int, args: argparse.Namespace) -> None:
-    """Say so when val or test got no scene (few logs, or all of them close together)."""
+    """Say so when val or test got no scene, with the cause the split method can have."""
     empty = [k for k in ("val", "test") if not result.get(k)]
-    if empty:
-        log.warning("%s: no scene in %s (of %d scenes; %d discarded): too few scenes, or all within "
-                    "--min-distance %g m of each other; use more logs, a smaller --min-distance or --lists",
-                    args.dataroot, " and ".join(empty), n_scenes, len(result.get("discarded", [])),
-                    args.min_distance)
+    if not empty:
+        return
+    if args.lists:
+        why = f"--lists {args.lists} gives it no scene of this database"
+    elif args.regions:
+        why = f"--regions {args.regions} puts no scene of this database there"
+    else:
+        why = (f"too few scenes for the ratios (a whole group of scenes within --min-distance "
+               f"{args.min_distance:g} m must fit a holdout's share), or all of them close together; use "
+               f"more logs, other --ratios, a smaller --min-distance, or --lists")
+    log.warning("%s: no scene in %s (of %d scenes; %d discarded): %s", args.dataroot, " and ".join(empty),
+                n_scenes, len(result.get("discarded", [])), why)
 
 
 def _list_split(table: SceneTable, lists_path: str) -> tuple[dict, dict]:

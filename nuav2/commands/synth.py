@@ -59,15 +59,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "sweep plus its 20 Hz camera images), with and without building the world.")
     p.add_argument("out_dir", type=Path, help="dataset root; the log goes to OUT_DIR/<split>/<log_id>/")
     p.add_argument("--seed", type=non_negative_int, default=0,
-                   help="world seed (>= 0): layout, actors, offsets, timestamps")
+                   help="world seed (>= 0): layout, actors, offsets, timestamps (default: %(default)s)")
     p.add_argument("--preset", choices=PRESETS, default="easy", help="realism preset (default: easy)")
     p.add_argument("--layout", choices=LAYOUTS, default=None,
                    help="road layout (default: four_way, or drawn from the seed when layouts vary)")
     p.add_argument("--seconds", type=synth_seconds, default=2.0,
-                   help="driving time, > 0.05 (10 sweeps per second)")
+                   help="driving time, > 0.05 (10 sweeps per second; default: %(default)s)")
     p.add_argument("--scale", type=synth_image_scale, default=0.125,
-                   help="camera resolution factor of the AV2 rig, > 0")
-    p.add_argument("--split", default="train", choices=("train", "val", "test"), help="AV2 split folder")
+                   help="camera resolution factor of the AV2 rig, > 0 (default: %(default)s)")
+    p.add_argument("--split", default="train", choices=("train", "val", "test"),
+                   help="AV2 split folder (default: %(default)s)")
     p.add_argument("--stereo", action="store_true", help="also write the two stereo_front cameras")
     p.add_argument("--lidar-azimuth-steps", type=lidar_azimuth_steps, default=None,
                    help="rays per beam per sweep, >= 8 (default 512: ~28k points)")

@@ -30,7 +30,21 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
+def require_version_folder(dataroot: Path, version: str) -> None:
+    """A missing DATAROOT or VERSION folder is bad input (one line, exit 2), as for every command; what
+    is inside a folder that exists (a missing table included) is the report's business (exit 1)."""
+    from nuav2.cli import UsageError
+
+    if not dataroot.is_dir():
+        raise UsageError(f"{dataroot}: dataroot not found")
+    if not (dataroot / version).is_dir():
+        found = sorted(p.name for p in dataroot.iterdir() if p.is_dir() and (p / "scene.json").is_file())
+        raise UsageError(f"--version {version}: no folder {dataroot / version} "
+                         f"(versions in {dataroot}: {', '.join(found) or 'none'})")
+
+
 def run(args: argparse.Namespace) -> int:
+    require_version_folder(args.dataroot, args.version)
     report = validate_database(args.dataroot, args.version, check_files=not args.no_files,
                                check_images=not args.no_images, decode_images=args.decode_images,
                                devkit=args.devkit,

@@ -97,7 +97,8 @@ def can_bus_from_pose(
 ) -> F64:
     """The 18 values in the layout of MapTR's nuScenes converter: [0:3] ego t, [3:7] ego q (wxyz),
     [7:16] ``motion`` (accel, rotation rate, velocity; see :func:`ego_motion`), zeros if None,
-    [-2] yaw in rad in [0, 2 pi) and [-1] in degrees in [0, 360), as MapTR's dataset writes them."""
+    [-2] yaw in rad in [0, 2 pi] and [-1] in degrees in [0, 360], as MapTR's dataset writes them (a yaw a
+    hair below 0 gives 360.0 there too)."""
     can_bus = np.zeros(CAN_BUS_SIZE)
     can_bus[:3] = translation
     can_bus[3:7] = rotation_wxyz
