@@ -78,3 +78,18 @@ def test_a_documented_command_parses(where: str, command: str):
             build_parser().parse_args(argv_of(command))
     except SystemExit as e:
         assert not e.code, f"{where}: {command}\n{err.getvalue().strip()}"
+
+
+CITED_PATH = re.compile(r"`((?:nuav2|tests|docs|converters|rig_specs|\.ci)/[\w./-]*)`")
+
+
+def test_every_repository_path_the_docs_cite_exists():
+    """A module, test or file named in backticks (``nuav2/warp/harmonise.py``, ``tests/...``) exists."""
+    cited, missing = 0, []
+    for path in DOCS:
+        for i, line in enumerate(path.read_text().splitlines(), 1):
+            for m in CITED_PATH.finditer(line):
+                cited += 1
+                if not (ROOT / m.group(1).rstrip("/.")).exists():
+                    missing.append(f"{path.name}:{i}: {m.group(1)}")
+    assert cited > 100 and not missing, missing
