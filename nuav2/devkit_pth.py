@@ -54,6 +54,15 @@ def uninstall(site_dir: Path | None = None) -> Path | None:
     return path
 
 
-def installed(site_dir: Path | None = None) -> Path | None:
+def status(site_dir: Path | None = None) -> dict:
+    """Whether the ``.pth`` is there and whether it is this installation's line (a ``.pth`` left by a
+    checkout that moved or was removed does nothing)."""
     path = (site_dir or default_site_dir()) / PTH_NAME
-    return path if path.is_file() else None
+    if not path.is_file():
+        return {"installed": None, "current": False}
+    try:
+        current = path.read_text() == pth_line()
+    except (OSError, UnicodeDecodeError):
+        current = False
+    return {"installed": str(path), "current": current,
+            "hook_file": str(HOOK_DIR / f"{MODULE_NAME}.py")}

@@ -86,6 +86,17 @@ def test_split_lists_naming_no_scene_are_refused_and_nothing_is_written(native_s
     assert _tables(db) == before  # splits.json neither overwritten nor all-discarded
 
 
+def test_split_lists_with_an_empty_train_list_says_so(native_synth_db, tmp_path, caplog):
+    db = _copy_db(native_synth_db, tmp_path / "db")
+    (scene,) = [s["name"] for s in json.loads((db / VERSION / "scene.json").read_text())]
+    lists = tmp_path / "lists.json"
+    lists.write_text(json.dumps({"train": [], "val": [scene], "test": []}))
+    code, _, err = cli("split", db, "--version", VERSION, "--lists", lists)
+    assert code == 0, err
+    empty = [r.getMessage() for r in caplog.records if "no scene in train and test" in r.getMessage()]
+    assert len(empty) == 1 and f"--lists {lists}" in empty[0]
+
+
 def test_split_lists_with_some_unknown_entries_still_split_and_say_so(native_synth_db, tmp_path, caplog):
     """Published lists name more logs than one database holds (the transfer benchmark's case)."""
     db = _copy_db(native_synth_db, tmp_path / "db")

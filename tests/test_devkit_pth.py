@@ -48,7 +48,8 @@ def test_installed_hook_opens_nuav2_maps_without_importing_nuav2(native_synth_db
     assert after.stderr == ""
 
     code, out, _ = cli("devkit-hook", "status", "--site-dir", site_dir)
-    assert code == 0 and json.loads(out)["installed"] == str(site_dir / PTH_NAME)
+    state = json.loads(out)
+    assert code == 0 and state["installed"] == str(site_dir / PTH_NAME) and state["current"] is True
     code, out, _ = cli("devkit-hook", "uninstall", "--site-dir", site_dir)
     assert code == 0 and not (site_dir / PTH_NAME).exists()
     assert open_map(site_dir, native_synth_db).returncode != 0
@@ -66,3 +67,20 @@ def test_a_hook_whose_file_is_gone_does_nothing(tmp_path: Path):
 def test_a_site_dir_that_is_not_a_directory_is_one_line(tmp_path: Path):
     code, _, err = cli("devkit-hook", "install", "--site-dir", tmp_path / "missing")
     assert code == 2 and err.strip().count("\n") == 0 and "--site-dir" in err
+
+
+def test_status_flags_a_hook_left_by_another_checkout(tmp_path: Path):
+    (tmp_path / PTH_NAME).write_text(pth_line(tmp_path / "old_checkout" / "nuav2_devkit_locations.py"))
+    code, out, err = cli("devkit-hook", "status", "--site-dir", tmp_path)
+    assert code == 1 and json.loads(out)["current"] is False and "install" in err
+
+
+def test_a_read_only_site_dir_is_one_line_naming_the_flag(tmp_path: Path):
+    from e2e_helpers import cli_bound_by_modes
+
+    locked = tmp_path / "locked"
+    locked.mkdir(mode=0o555)
+    code, _, err = cli_bound_by_modes("devkit-hook", "install", "--site-dir", locked)
+    assert code == 2 and err.strip().count("\n") == 0, err
+    assert f"--site-dir {locked}" in err and ".tmp" not in err
+    assert list(locked.iterdir()) == []

@@ -8,14 +8,22 @@ The database is a synthetic AV2 log with the two stereo cameras (as real AV2 log
 
 from __future__ import annotations
 
+import json
 import logging
 import pickle
+import shutil
 from pathlib import Path
 
 import pytest
 from e2e_helpers import VERSION, cli
 
-from nuav2.maptr.infos import AV2_RING_CAMERAS, MissingCameraError, camera_channels, info_filename
+from nuav2.maptr.infos import (
+    AV2_RING_CAMERAS,
+    MissingCameraError,
+    camera_channels,
+    default_cameras,
+    info_filename,
+)
 
 pytest_plugins = ["test_maptr_infos_support"]
 
@@ -61,12 +69,33 @@ def test_dataset_uses_the_same_camera_default(curved_db: Path, nusc):
     assert ds[0]["cam_names"] == MAPTR_AV2_CAMERAS and ds[0]["lidar2img"].shape == (7, 4, 4)
 
 
-def test_other_rigs_get_every_camera_sorted_by_name(nusc):
-    sample = dict(nusc.sample[0])
-    # The ring incomplete: not AV2's rig any more.
-    sample["data"] = {ch: tok for ch, tok in sample["data"].items() if ch != "ring_side_left"}
+def test_other_rigs_get_every_camera_sorted_by_name(nusc, monkeypatch):
+    # A sensor table without the whole ring: not AV2's rig any more.
+    monkeypatch.setattr(nusc, "sensor", [s for s in nusc.sensor if s["channel"] != "ring_side_left"])
     expected = sorted(set(MAPTR_AV2_CAMERAS + STEREO) - {"ring_side_left"})
-    assert camera_channels(nusc, sample) == expected  # LIDAR_TOP (no intrinsic) left out
+    assert default_cameras(nusc) == expected  # LIDAR_TOP (not a camera) left out
+
+
+def test_a_keyframe_lacking_a_default_camera_is_refused_not_reordered(nusc):
+    """The order is the database's, not each keyframe's: a keyframe without ring_side_left must not
+    get the stereo pair and an alphabetical order (MapTR looks cameras up by position)."""
+    sample = dict(nusc.sample[0])
+    sample["data"] = {ch: tok for ch, tok in sample["data"].items() if ch != "ring_side_left"}
+    with pytest.raises(MissingCameraError, match="ring_side_left") as e:
+        camera_channels(nusc, sample)
+    assert sample["token"] in str(e.value) and "--cameras" in str(e.value)
+
+
+def test_infos_refuse_a_database_where_a_keyframe_lacks_a_camera(curved_db: Path, tmp_path: Path):
+    db = tmp_path / "db"
+    shutil.copytree(curved_db, db, symlinks=True)
+    rows = json.loads((db / VERSION / "sample_data.json").read_text())
+    cam = next(r for r in rows if r["is_key_frame"] and "/ring_side_left/" in r["filename"])
+    cam["is_key_frame"] = False  # the devkit then lists no ring_side_left for that sample
+    (db / VERSION / "sample_data.json").write_text(json.dumps(rows))
+    msg = _refused("infos", db, "--version", VERSION, "--out", tmp_path / "out")
+    assert cam["sample_token"] in msg and "ring_side_left" in msg
+    assert not (tmp_path / "out").exists() or not list((tmp_path / "out").glob("*.pkl"))
 
 
 def test_requested_cameras_missing_from_a_sample_are_an_error_naming_them(nusc):

@@ -306,6 +306,9 @@ def test_version_folder_missing(tiny_db: Path, capsys) -> None:
     assert err.strip().count("\n") == 0 and "--version v9-none" in err and VERSION in err
     rc = main(["validate", str(tiny_db / "nope"), "--version", VERSION, "--quiet"])
     assert rc == 2 and "dataroot not found" in capsys.readouterr().err
+    for version in ("", ".", "..", f"x/{VERSION}"):  # not DATAROOT itself or a folder elsewhere
+        rc = main(["validate", str(tiny_db), "--version", version, "--quiet"])
+        assert rc == 2 and "--version" in capsys.readouterr().err
 
 
 def test_version_folder_without_tables_is_a_report(tmp_path: Path, capsys) -> None:

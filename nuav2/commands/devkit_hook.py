@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 
@@ -24,18 +25,24 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from nuav2.cli import UsageError
-    from nuav2.devkit_pth import default_site_dir, install, installed, uninstall
+    from nuav2.devkit_pth import default_site_dir, install, status, uninstall
 
     site_dir = args.site_dir or default_site_dir()
     if not site_dir.is_dir():
         raise UsageError(f"--site-dir {site_dir}: not a directory")
-    if args.action == "install":
-        out = {"installed": str(install(site_dir))}
-    elif args.action == "uninstall":
-        removed = uninstall(site_dir)
-        out = {"removed": str(removed) if removed else None}
-    else:
-        found = installed(site_dir)
-        out = {"installed": str(found) if found else None, "site_dir": str(site_dir)}
+    try:
+        if args.action == "install":
+            out = {"installed": str(install(site_dir))}
+        elif args.action == "uninstall":
+            removed = uninstall(site_dir)
+            out = {"removed": str(removed) if removed else None}
+        else:
+            out = {**status(site_dir), "site_dir": str(site_dir)}
+    except OSError as e:
+        raise UsageError(f"--site-dir {site_dir}: cannot {args.action} there ({e.strerror or e})") from e
     print(json.dumps(out))
+    if args.action == "status" and out["installed"] and not out["current"]:
+        print(f"nuav2 devkit-hook: {out['installed']} is not this installation's hook (left by another "
+              "checkout?): run `nuav2 devkit-hook install` again", file=sys.stderr)
+        return 1
     return 0

@@ -106,7 +106,7 @@ def run(args: argparse.Namespace) -> int:
     except RayMissingError as e:
         raise UsageError(str(e)) from e
     except MissingCameraError as e:
-        raise UsageError(f"--cameras: {e}") from e
+        raise UsageError(f"--cameras: {e}" if args.cameras else str(e)) from e
     print(json.dumps({split: str(path) for split, path in written.items()}, indent=1))
     # MapTR's own tools run in an older stack where nuav2 is not installed; this lets them open the maps.
     print(f"MapTR's tools (nuscenes-devkit 1.1.x) open the av2-* map locations with PYTHONPATH={HOOK_DIR}",

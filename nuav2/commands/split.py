@@ -16,8 +16,9 @@ log = logging.getLogger(__name__)
 
 
 def _warn_empty_holdout(result: dict, n_scenes: int, args: argparse.Namespace) -> None:
-    """Say so when val or test got no scene, with the cause the split method can have."""
-    empty = [k for k in ("val", "test") if not result.get(k)]
+    """Say so when a split got no scene, with the cause the split method can have (the geo rule fills
+    train first, so only val and test can end up empty there; lists and regions can leave any)."""
+    empty = [k for k in ("train", "val", "test") if not result.get(k)]
     if not empty:
         return
     if args.lists:

@@ -36,7 +36,10 @@ def require_version_folder(dataroot: Path, version: str) -> None:
     from nuav2.cli import UsageError
 
     if not dataroot.is_dir():
-        raise UsageError(f"{dataroot}: dataroot not found")
+        why = "is not a directory" if dataroot.exists() else "not found"
+        raise UsageError(f"{dataroot}: dataroot {why}")
+    if version in ("", ".", "..") or Path(version).name != version:
+        raise UsageError(f"--version {version!r}: must name a folder directly under DATAROOT")
     if not (dataroot / version).is_dir():
         found = sorted(p.name for p in dataroot.iterdir() if p.is_dir() and (p / "scene.json").is_file())
         raise UsageError(f"--version {version}: no folder {dataroot / version} "

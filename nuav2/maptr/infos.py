@@ -64,28 +64,30 @@ def info_filename(prefix: str, split: str) -> str:
     return f"{prefix}_map_infos_temporal_{split}.pkl"
 
 
-def camera_channels(nusc, sample: dict, cameras: Sequence[str] | None = None) -> list[str]:
-    """The requested cameras, else a fixed rig order (MapTR's per-camera embeddings are indexed by
-    position): nuScenes' six in MapTR's order, else AV2's seven ring cameras in MapTR's AV2 order
-    (stereo left out, as MapTR's AV2 converter does), else every camera channel sorted by name."""
-    data = sample["data"]
-    if cameras is not None:
-        missing = [c for c in cameras if c not in data]
-        if missing:
-            raise MissingCameraError(
-                f"{nusc.dataroot}/{nusc.version}: sample {sample['token']} lacks camera(s) "
-                f"{', '.join(missing)}"
-            )
-        return list(cameras)
+def default_cameras(nusc) -> list[str]:
+    """The database's camera order, the same for every keyframe (MapTR's per-camera embeddings are
+    indexed by position): nuScenes' six in MapTR's order when the sensor table has them, else AV2's
+    seven ring cameras in MapTR's AV2 order (stereo left out, as MapTR's AV2 converter does), else
+    every camera channel sorted by name."""
+    present = {s["channel"] for s in nusc.sensor if s.get("modality") == "camera"}
     for rig in (NUSCENES_CAMERAS, AV2_RING_CAMERAS):
-        if all(c in data for c in rig):
+        if present.issuperset(rig):
             return list(rig)
-    present = []
-    for ch, sd_token in data.items():
-        sd = nusc.get("sample_data", sd_token)
-        if nusc.get("calibrated_sensor", sd["calibrated_sensor_token"])["camera_intrinsic"]:
-            present.append(ch)
     return sorted(present)
+
+
+def camera_channels(nusc, sample: dict, cameras: Sequence[str] | None = None) -> list[str]:
+    """The requested cameras, else :func:`default_cameras`; a keyframe that lacks one is refused
+    (a keyframe with fewer or other cameras would shift every camera after the gap)."""
+    wanted = list(cameras) if cameras is not None else default_cameras(nusc)
+    missing = [c for c in wanted if c not in sample["data"]]
+    if missing:
+        hint = "" if cameras is not None else " (--cameras picks cameras every keyframe has)"
+        raise MissingCameraError(
+            f"{nusc.dataroot}/{nusc.version}: sample {sample['token']} lacks camera(s) "
+            f"{', '.join(missing)}{hint}"
+        )
+    return wanted
 
 
 def _pose_T(record: dict) -> F64:
