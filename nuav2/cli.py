@@ -55,10 +55,14 @@ def require_database(dataroot: str | Path, version: str) -> Path:
         raise UsageError(f"{root}: dataroot not found")
     folder = root / version
     if not (folder / "scene.json").is_file():
-        found = sorted(p.name for p in root.iterdir() if (p / "scene.json").is_file())
         raise UsageError(f"--version {version}: {folder} holds no nuScenes tables "
-                         f"(versions in {root}: {', '.join(found) or 'none'})")
+                         f"(versions in {root}: {', '.join(versions_in(root)) or 'none'})")
     return folder
+
+
+def versions_in(root: Path) -> list[str]:
+    """The table folders (holding a scene.json) directly under a dataroot, for error messages."""
+    return sorted(p.name for p in root.iterdir() if (p / "scene.json").is_file())
 
 
 def describe_error(e: BaseException) -> str:

@@ -12,13 +12,22 @@ from __future__ import annotations
 
 import contextlib
 import os
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 # Problems of the conformance checker that stop the devkit (or the code reading its records):
 # missing or unparsable tables, records of the wrong shape, tokens that resolve to nothing.
 STRUCTURAL_CHECKS = ("layout", "missing_table", "bad_json", "schema", "duplicate_token", "foreign_key",
                      "linked_list", "map_table")
+
+
+def refuse_repeats(flag: str, values: Sequence[str]) -> None:
+    """A list flag naming a value twice (``--classes``, ``--cameras``) is a UsageError naming them."""
+    from nuav2.cli import UsageError
+
+    twice = sorted({v for v in values if values.count(v) > 1})
+    if twice:
+        raise UsageError(f"{flag}: {', '.join(twice)} given more than once")
 
 
 def out_path_problem(path: str | Path) -> str | None:

@@ -87,6 +87,7 @@ def choose_classes(preds: dict, classes: list[str] | None, pred_path: str) -> tu
 def check_classes(classes: list[str] | None, known: list[str], source: str) -> None:
     """Refuse a ``--classes`` name outside the vocabulary (a typo would score a silent AP 0)."""
     from nuav2.cli import UsageError
+    from nuav2.cli_inputs import refuse_repeats
 
     if not classes:
         return
@@ -94,9 +95,7 @@ def check_classes(classes: list[str] | None, known: list[str], source: str) -> N
     if unknown:
         raise UsageError(f"--classes: unknown class(es) {', '.join(unknown)}; the classes of {source} are: "
                          f"{', '.join(known)}")
-    twice = sorted({c for c in classes if classes.count(c) > 1})
-    if twice:
-        raise UsageError(f"--classes: {', '.join(twice)} given more than once")
+    refuse_repeats("--classes", classes)
 
 
 def gt_file_classes(gts: dict, preds: dict) -> list[str]:

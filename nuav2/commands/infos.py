@@ -60,15 +60,15 @@ def check_cameras(dataroot: Path, version: str, cameras: list[str] | None) -> No
     """Refuse a ``--cameras`` channel twice or not a camera of the sensor table, before any work
     (a sample that lacks one is refused during the work, naming the sample)."""
     from nuav2.cli import UsageError
+    from nuav2.cli_inputs import refuse_repeats
+    from nuav2.maptr.infos import camera_sensor_channels
 
     if not cameras:
         return
-    twice = sorted({c for c in cameras if cameras.count(c) > 1})
-    if twice:
-        raise UsageError(f"--cameras: {', '.join(twice)} given more than once")
+    refuse_repeats("--cameras", cameras)
     try:
         sensors = json.loads((Path(dataroot) / version / "sensor.json").read_text())
-        known = sorted(s["channel"] for s in sensors if s.get("modality") == "camera")
+        known = sorted(camera_sensor_channels(sensors))
     except (OSError, ValueError, TypeError, KeyError, AttributeError):
         return  # a damaged table is diagnosed (naming the file) when the work reads it
     missing = [c for c in cameras if c not in known]

@@ -33,7 +33,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def require_version_folder(dataroot: Path, version: str) -> None:
     """A missing DATAROOT or VERSION folder is bad input (one line, exit 2), as for every command; what
     is inside a folder that exists (a missing table included) is the report's business (exit 1)."""
-    from nuav2.cli import UsageError
+    from nuav2.cli import UsageError, versions_in
 
     if not dataroot.is_dir():
         why = "is not a directory" if dataroot.exists() else "not found"
@@ -41,9 +41,8 @@ def require_version_folder(dataroot: Path, version: str) -> None:
     if version in ("", ".", "..") or Path(version).name != version:
         raise UsageError(f"--version {version!r}: must name a folder directly under DATAROOT")
     if not (dataroot / version).is_dir():
-        found = sorted(p.name for p in dataroot.iterdir() if p.is_dir() and (p / "scene.json").is_file())
         raise UsageError(f"--version {version}: no folder {dataroot / version} "
-                         f"(versions in {dataroot}: {', '.join(found) or 'none'})")
+                         f"(versions in {dataroot}: {', '.join(versions_in(dataroot)) or 'none'})")
 
 
 def run(args: argparse.Namespace) -> int:

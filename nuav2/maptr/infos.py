@@ -64,12 +64,17 @@ def info_filename(prefix: str, split: str) -> str:
     return f"{prefix}_map_infos_temporal_{split}.pkl"
 
 
+def camera_sensor_channels(sensor_rows: Sequence[dict]) -> set[str]:
+    """The camera channels of a ``sensor`` table."""
+    return {row["channel"] for row in sensor_rows if row.get("modality") == "camera"}
+
+
 def default_cameras(nusc) -> list[str]:
     """The database's camera order, the same for every keyframe (MapTR's per-camera embeddings are
     indexed by position): nuScenes' six in MapTR's order when the sensor table has them, else AV2's
     seven ring cameras in MapTR's AV2 order (stereo left out, as MapTR's AV2 converter does), else
     every camera channel sorted by name."""
-    present = {s["channel"] for s in nusc.sensor if s.get("modality") == "camera"}
+    present = camera_sensor_channels(nusc.sensor)
     for rig in (NUSCENES_CAMERAS, AV2_RING_CAMERAS):
         if present.issuperset(rig):
             return list(rig)
@@ -295,15 +300,14 @@ class SceneInfoMaker:
         self.gt = MapGT(dataroot, patch)
         self.max_sweeps, self.cameras, self.path_root = max_sweeps, cameras, path_root
 
-    def scene(self, scene_name: str) -> tuple[bytes, int, list[tuple[str, int, int]]]:
-        """(record bytes of the keyframes in time order, their count, (scene token, timestamp, number of
-        cameras) of each)."""
+    def scene(self, scene_name: str) -> tuple[bytes, int, list[tuple[str, int]]]:
+        """(record bytes of the keyframes in time order, their count, (scene token, timestamp) of each)."""
         parts, times = [], []
         for frame_idx, tok in enumerate(scene_sample_tokens(self.nusc, scene_name)):
             info = sample_info(self.nusc, tok, frame_idx, self.max_sweeps, self.cameras, self.path_root)
             info["annotation"] = annotation_of(self.gt.sample_vectors(self.nusc, tok))
             parts.append(record_bytes(info))
-            times.append((info["scene_token"], info["timestamp"], len(info["cams"])))
+            times.append((info["scene_token"], info["timestamp"]))
         cached = self.gt._by_location  # MapGT's lazy per-location cache, bounded here
         while len(cached) > MAX_CACHED_MAPS:
             cached.pop(next(iter(cached)))
@@ -325,16 +329,19 @@ def scenes_stay_contiguous_by_time(infos: list[dict]) -> bool:
 
 
 class _SceneIndex:
-    """What split selection reads of a database (dataroot, version, scene records), without loading
-    the devkit's tables into the main process when workers do the work."""
+    """What split selection and the camera default read of a database (dataroot, version, scene and
+    sensor records), without loading the devkit's tables into the main process when workers do the work."""
 
     def __init__(self, dataroot: str | Path, version: str):
         self.dataroot, self.version = str(dataroot), version
-        path = Path(dataroot) / version / "scene.json"
-        try:
-            self.scene = json.loads(path.read_text())
-        except (OSError, ValueError) as e:
-            raise FileNotFoundError(f"{path}: cannot read the scene table ({type(e).__name__}: {e})") from e
+        for name in ("scene", "sensor"):
+            path = Path(dataroot) / version / f"{name}.json"
+            try:
+                setattr(self, name, json.loads(path.read_text()))
+            except (OSError, ValueError) as e:
+                raise FileNotFoundError(
+                    f"{path}: cannot read the {name} table ({type(e).__name__}: {e})"
+                ) from e
 
 
 def export_infos(
@@ -366,8 +373,7 @@ def export_infos(
     maker_args = (str(dataroot), version, tuple(patch), max_sweeps,
                   tuple(cameras) if cameras else None, path_root)
     written: dict[str, Path] = {}
-    keyframes: set[tuple[str, int]] = set()
-    no_camera: set[tuple[str, int]] = set()
+    keyframes: set[tuple[str, int]] = set()  # (scene token, timestamp): a keyframe in several splits once
     with scene_runner(maker_args, workers, executor, ray_address) as run_scenes:
         for split, names in jobs.items():
             path = Path(out_dir) / info_filename(prefix, split)
@@ -378,9 +384,8 @@ def export_infos(
                     stream = InfoPickleStream(f)
                     for records, count, scene_times in run_scenes(names, bar):
                         stream.add(records, count)
-                        times += [{"scene_token": s, "timestamp": t} for s, t, _ in scene_times]
-                        keyframes.update((s, t) for s, t, _ in scene_times)
-                        no_camera.update((s, t) for s, t, n_cams in scene_times if not n_cams)
+                        times += [{"scene_token": s, "timestamp": t} for s, t in scene_times]
+                        keyframes.update(scene_times)
                     stream.close({"version": version})
             finally:
                 bar.close()
@@ -392,11 +397,11 @@ def export_infos(
                 )
             log.info("wrote %s (%d samples)", path, stream.count)
             written[split] = path
-    if no_camera:
+    if not cameras and not default_cameras(index):  # every keyframe's cams == {}
         log.warning(
             "%s/%s: %d of %d keyframes have no camera (cams == {}): MapTR's image pipeline cannot use "
             "them; convert the logs with their cameras",
-            dataroot, version, len(no_camera), len(keyframes),
+            dataroot, version, len(keyframes), len(keyframes),
         )
     return written
 

@@ -91,11 +91,16 @@ def build_route(layout: RoadLayout, via: int) -> Route:
     return Route(ids, pl.concat(parts), marks)
 
 
+def followed_curvature(path: F64, s: F64) -> F64:
+    """|curvature| (1/m) at arc lengths ``s`` of ``path`` as vehicles follow it (smoothed)."""
+    _, d1, d2 = pl.smooth(path, s, PATH_SMOOTH_M)
+    return np.abs(d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]) / np.linalg.norm(d1, axis=1) ** 3
+
+
 def turn_speed(path: F64, s0: float, s1: float, v_max: float = TURN_MPS) -> float:
     """Speed through the piece [s0, s1] of ``path`` (as it is followed, smoothed): ``v_max``, or less where
     its tightest curvature would take the lateral acceleration above ``TURN_LAT_ACCEL``."""
-    _, d1, d2 = pl.smooth(path, np.linspace(s0, s1, 200), PATH_SMOOTH_M)
-    kappa = np.abs(d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]) / np.linalg.norm(d1, axis=1) ** 3
+    kappa = followed_curvature(path, np.linspace(s0, s1, 200))
     return float(min(v_max, np.sqrt(TURN_LAT_ACCEL / max(float(kappa.max()), 1e-9))))
 
 

@@ -25,10 +25,10 @@ from nuav2.synth.layouts import SIDEWALK_W, StreetPlan
 from nuav2.synth.legacy import CAR_COLORS, SHIRT_COLORS, ActorTrack, EgoTrajectory, car, uuid4
 from nuav2.synth.motion import (
     ACCEL,
-    PATH_SMOOTH_M,
     TURN_LAT_ACCEL,
     PathMotion,
     build_route,
+    followed_curvature,
     junction_lanes,
     lane_centre,
 )
@@ -106,8 +106,7 @@ def _driven(path: F64, s_mid: float, speed: float, duration: float, lat: float =
     ``ACCEL``; at ``s_mid`` at mid-log. On a straight path it is :func:`_constant`."""
     reach = speed * (duration / 2 + 1.5) + 5.0  # at most this far either side of s_mid in the table
     grid = np.arange(s_mid - reach, s_mid + reach + 0.25, 0.25)
-    _, d1, d2 = pl.smooth(path, grid, PATH_SMOOTH_M)
-    kappa = np.abs(d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]) / np.linalg.norm(d1, axis=1) ** 3
+    kappa = followed_curvature(path, grid)
     if not np.any(kappa * speed**2 > TURN_LAT_ACCEL):
         return _constant(path, s_mid, speed, duration, lat)
     v = np.minimum(speed, np.sqrt(TURN_LAT_ACCEL / np.maximum(kappa, 1e-12)))
