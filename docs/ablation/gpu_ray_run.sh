@@ -14,8 +14,9 @@
 #     ray/dashboard/client/build, find -name '*.map' -delete, strip --strip-unneeded ray/_raylet.so
 #     ray/core/src/ray/raylet/raylet ray/core/src/ray/gcs/gcs_server, tar -cJf (25 MB)
 # DEVICE=cpu GPUS=0 NO_INSTALL=1 PY=.venv/bin/python runs the same steps on a CPU machine to check
-# the script. On the H100 (2026-11-26) its Ray step failed before the whole-number CPU fix of
-# nuav2/executors/ray_tasks.py (see docs/cluster.md); it has not run to its end on a GPU since.
+# the script; CUDA_TESTS=SECONDS also runs the CUDA tests at the end. On the H100 (2026-11-26) its Ray
+# step failed before the whole-number CPU fix of nuav2/executors/ray_tasks.py (see docs/cluster.md);
+# on 2026-11-27 it ran to its end there (docs/ablation/gpu_ray_h100_full.json).
 OUT=${OUT:-gpu_out}; mkdir -p "$OUT"
 DEVICE=${DEVICE:-cuda}; GPUS=${GPUS:-0.5}; PY=${PY:-python3}
 export PYTHONUNBUFFERED=1 MAX_JOBS=16 TORCH_CUDA_ARCH_LIST=9.0
@@ -64,9 +65,28 @@ a, b = summary["gout_ray"]["tables"], summary["gout_local"]["tables"]
 summary["tables_differ"] = sorted(k for k in a.keys() | b.keys() if a.get(k) != b.get(k))
 a, b = hashes["gout_ray"], hashes["gout_local"]
 summary["images_differ"] = sum(a.get(k) != b.get(k) for k in a.keys() | b.keys())
+# How far apart the two runs' images are (GPU runs differ in float rounding and atomics' order).
+import numpy as np
+from PIL import Image
+psnr = []
+for k in sorted(a.keys() & b.keys()):
+    x, y = (np.asarray(Image.open(Path("/tmp") / n / k), dtype=np.float64) for n in ("gout_ray", "gout_local"))
+    mse = float(np.mean((x - y) ** 2))
+    psnr.append(99.0 if mse == 0 else 10 * np.log10(255.0**2 / mse))
+if psnr:
+    summary["ray_vs_local_psnr_db"] = {"min": round(min(psnr), 2), "median": round(float(np.median(psnr)), 2),
+                                       "images": len(psnr)}
+qa, qb = ({k: v for r in json.loads((Path("/tmp") / n / "v1.0-nuav2/nuav2_logs.json").read_text())
+           for k, v in r.get("image_quality", {}).items()} for n in ("gout_ray", "gout_local"))
+summary["image_quality_max_abs_diff"] = max((abs(qa[k] - qb[k]) for k in qa.keys() & qb.keys()), default=None)
 (out / "gpu_ray_summary.json").write_text(json.dumps(summary, indent=1))
-print(json.dumps({k: summary[k] for k in ("tables_differ", "images_differ")}))
+print(json.dumps({k: summary.get(k) for k in ("tables_differ", "images_differ", "ray_vs_local_psnr_db",
+                                               "image_quality_max_abs_diff")}))
 for name in ("gout_ray", "gout_local"):
     print(name, summary[name]["images"], "images", json.dumps(summary[name]["report"])[:1500])
 EOF
 t
+if [ -n "$CUDA_TESTS" ]; then  # the CUDA tests on the same machine (gsplat already built above)
+  timeout "$CUDA_TESTS" $PY -m pytest -q -p no:cacheprovider tests/test_raster_gsplat_parity.py tests/test_recon_cuda.py \
+    > "$OUT/cuda_tests.log" 2>&1; echo "cuda tests rc=$?"; tail -5 "$OUT/cuda_tests.log"; t
+fi
