@@ -211,7 +211,8 @@ def test_annotations_match_av2_boxes_in_the_city_frame(nusc: NuScenes, native_db
         assert ann["size"] == pytest.approx([row.width_m, row.length_m, row.height_m], abs=1e-12)
         city_R_box = city_T_ego.rotation @ Quaternion([row.qw, row.qx, row.qy, row.qz]).rotation_matrix
         assert np.abs(Quaternion(ann["rotation"]).rotation_matrix - city_R_box).max() < 1e-12
-        assert ann["num_lidar_pts"] == row.num_interior_pts and ann["visibility_token"] == "4"
+        assert ann["num_lidar_pts"] == row.num_interior_pts
+        assert ann["visibility_token"] in ("1", "2", "3", "4")  # measured: tests/test_visibility.py
         assert len(ann["attribute_tokens"]) <= 1
 
 

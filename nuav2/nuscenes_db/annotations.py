@@ -16,6 +16,7 @@ from nuav2.geometry import F64, make_T, quat_to_rot, rot_to_quat
 from nuav2.nuscenes_db.categories import UNKNOWN_VISIBILITY, attribute_for, category_rule, moving_threshold
 from nuav2.nuscenes_db.tables import attribute_token, category_token
 from nuav2.nuscenes_db.tokens import make_token
+from nuav2.nuscenes_db.visibility import visibility_token
 from nuav2.scene import Annotations, SceneLog
 
 SPEED_HALF_WINDOW_NS = 500_000_000  # speed = displacement over about +-0.5 s
@@ -34,6 +35,7 @@ class KeyBoxes:
     ego_T_box: F64  # (K, 4, 4) source ego frame at the sweep
     size_lwh: F64  # (K, 3)
     num_lidar_pts: np.ndarray  # (K,) int64, own copy; -1 = unknown, the writer counts it in the sweep
+    visible: np.ndarray  # (K,) float64 visible fraction in the output cameras; NaN = no camera written
 
     def __len__(self) -> int:
         return len(self.rows)
@@ -71,7 +73,8 @@ def key_boxes(scene: SceneLog, key_ns: np.ndarray, global_T_city: F64) -> KeyBox
     keep &= (ts_all >= p_ts[0] - slack) & (ts_all <= p_ts[-1] + slack)
     rows_all = np.flatnonzero(keep)
     empty = KeyBoxes(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, object), [], [],
-                     np.zeros((0, 4, 4)), np.zeros((0, 4, 4)), np.zeros((0, 3)), np.zeros(0, np.int64))
+                     np.zeros((0, 4, 4)), np.zeros((0, 4, 4)), np.zeros((0, 3)), np.zeros(0, np.int64),
+                     np.zeros(0))
     if len(rows_all) == 0:
         return empty
 
@@ -118,6 +121,7 @@ def key_boxes(scene: SceneLog, key_ns: np.ndarray, global_T_city: F64) -> KeyBox
         ego_T_box=ego_T_box[pos],
         size_lwh=np.asarray(ann.size_lwh, dtype=np.float64)[rows],
         num_lidar_pts=np.asarray(ann.num_interior_pts, dtype=np.int64)[rows],
+        visible=np.full(len(rows), np.nan),
     )
 
 
@@ -160,7 +164,8 @@ def annotation_records(log_id: str, boxes: KeyBoxes,
                 "token": ann_tokens[k],
                 "sample_token": sample_tokens[int(boxes.sample_index[k])],
                 "instance_token": inst_token,
-                "visibility_token": UNKNOWN_VISIBILITY,
+                "visibility_token": (UNKNOWN_VISIBILITY if np.isnan(boxes.visible[k])
+                                     else visibility_token(float(boxes.visible[k]))),
                 "attribute_tokens": [attribute_token(attr)] if attr else [],
                 "translation": [float(v) for v in boxes.global_T_box[k, :3, 3]],
                 "size": [w, l, h],

@@ -47,7 +47,8 @@ NUSCENES_ATTRIBUTES: dict[str, str] = {
     "vehicle.stopped": "The vehicle is stationary now but moves at another time in the log.",
 }
 
-# Visibility: the 4 real nuScenes tokens. AV2 has no visibility, so every box gets UNKNOWN_VISIBILITY.
+# Visibility: the 4 real nuScenes tokens, measured in the output cameras (visibility.py); a database
+# written without cameras has nothing to measure it in, and its boxes get UNKNOWN_VISIBILITY.
 NUSCENES_VISIBILITY: list[tuple[str, str, str]] = [
     ("1", "v0-40", "visibility of whole object is between 0 and 40%"),
     ("2", "v40-60", "visibility of whole object is between 40 and 60%"),

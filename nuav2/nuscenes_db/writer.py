@@ -38,6 +38,7 @@ from nuav2.nuscenes_db.lidar_top import lidar_T_egoS, sweep_to_pcd_rows, write_p
 from nuav2.nuscenes_db.map_frame import OFFSET_KEY, MapFrame, map_frame_for
 from nuav2.nuscenes_db.tables import PER_LOG_TABLES
 from nuav2.nuscenes_db.tokens import make_token
+from nuav2.nuscenes_db.visibility import VisibilityCamera, box_visibility, occluder_points
 from nuav2.progress import progress_bar
 from nuav2.rig import Rig
 from nuav2.scene import SceneLog, VectorMap
@@ -46,7 +47,8 @@ from nuav2.threads import ordered_thread_map
 log = logging.getLogger(__name__)
 
 # Bump when what a shard holds changes, so old shards are redone instead of merged.
-WRITER_FORMAT = 3  # 2: global frame shifted in z too (city_offset [x, y, z]); 3: 80 m map margin
+# 2: global frame shifted in z too (city_offset [x, y, z]); 3: 80 m map margin; 4: measured visibility
+WRITER_FORMAT = 4
 
 
 @dataclass(frozen=True)
@@ -188,8 +190,11 @@ def _write_log(scene: SceneLog, out_rig: Rig, images: ImageSource, files: _Files
     city_T_egoT_of = {(f.channel, f.index): T for f, T in zip(all_frames, city_T_egoT)}
 
     boxes = ann_mod.key_boxes(scene, timeline.key_ns, global_T_city)
+    view_cams = [VisibilityCamera(cam.K, egoS_T_egoT @ cam.ego_T_cam, cam.width, cam.height,
+                                  cam.ego_mask() if cam.ego_mask_polygons else None)
+                 for cam in (out_rig.camera(ch) for ch in shots)]
     filenames = _write_lidar_top(scene, timeline, lidar_ch, lidar_T_egoS(egoT_T_lidar, egoS_T_egoT), boxes,
-                                 files, options)
+                                 view_cams, files, options)
     filenames.update(_write_cameras(scene, timeline, out_rig, images, shots, city_T_egoT_of, files, options))
 
     _sample_data_records(tables, timeline, lidar_ch, out_rig, shots, sd_tokens, sample_tokens, calib_tokens,
@@ -225,10 +230,11 @@ def _write_log(scene: SceneLog, out_rig: Rig, images: ImageSource, files: _Files
 
 
 def _write_lidar_top(scene: SceneLog, timeline: Timeline, lidar_ch: str, lidar_T_ego: F64,
-                     boxes: ann_mod.KeyBoxes, files: _Files,
+                     boxes: ann_mod.KeyBoxes, view_cams: list[VisibilityCamera], files: _Files,
                      options: WriterOptions) -> dict[tuple[str, int], str]:
-    """Each source sweep moved into the output LIDAR_TOP frame; fills unknown box point counts
-    (``boxes.num_lidar_pts == -1``) from the key sweeps. Returns {(channel, index): filename}."""
+    """Each source sweep moved into the output LIDAR_TOP frame; from the key sweeps, fills unknown box
+    point counts (``boxes.num_lidar_pts == -1``) and, with cameras (``view_cams``, in the source ego
+    frame), the boxes' visible fractions. Returns {(channel, index): filename}."""
     filenames: dict[tuple[str, int], str] = {}
     for f in progress_bar(timeline.frames[lidar_ch], desc=f"{scene.log_id[:8]} {lidar_ch}", unit="sweep",
                           leave=False, disable=not options.show_progress):
@@ -240,10 +246,15 @@ def _write_lidar_top(scene: SceneLog, timeline: Timeline, lidar_ch: str, lidar_T
         write_pcd_bin(files.path(rel), sweep_to_pcd_rows(points, lidar_T_ego))
         filenames[(lidar_ch, f.index)] = rel
         if f.is_key_frame:
-            todo = np.flatnonzero((boxes.sample_index == f.sample_index) & (boxes.num_lidar_pts < 0))
+            here = boxes.sample_index == f.sample_index
+            todo = np.flatnonzero(here & (boxes.num_lidar_pts < 0))
             if len(todo):
                 boxes.num_lidar_pts[todo] = ann_mod.count_points_in_boxes(
                     points.xyz_ego, boxes.ego_T_box[todo], boxes.size_lwh[todo])
+            if view_cams and np.any(here):
+                occluders = occluder_points(points.xyz_ego, boxes.ego_T_box[here], boxes.size_lwh[here])
+                boxes.visible[here] = box_visibility(boxes.ego_T_box[here], boxes.size_lwh[here], view_cams,
+                                                     occluders)
     return filenames
 
 
