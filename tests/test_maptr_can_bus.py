@@ -18,7 +18,8 @@ import pytest
 from e2e_helpers import VERSION, cli
 from scipy.spatial.transform import Rotation
 
-from nuav2.maptr.infos import GRAVITY_MPS2, can_bus_from_pose, ego_motion, info_filename, rotation_vector
+from nuav2.ego_motion import GRAVITY_MPS2, ego_motion, rotation_vector
+from nuav2.maptr.infos import can_bus_from_pose, info_filename
 
 pytest_plugins = ["test_maptr_infos_support"]
 
@@ -195,3 +196,29 @@ def test_can_bus_pose_fields_are_what_maptr_overwrites(curved_infos):
         yaw = Quaternion(info["ego2global_rotation"]).yaw_pitch_roll[0]
         assert cb[-1] == pytest.approx(np.degrees(yaw) % 360.0) and 0 <= cb[-2] < 2 * np.pi
         assert cb[-2] == pytest.approx(np.radians(cb[-1]))
+
+
+def test_can_bus_expansion_serves_the_devkits_api_with_the_infos_values(curved_db: Path, curved_infos):
+    """``convert`` writes ``can_bus/scene-NNNN_pose.json``: the devkit's NuScenesCanBus (which BEVFormer's
+    and MapTR's stock converters open first) reads it, one message per LIDAR_TOP sweep, holding the ego
+    pose and the motion ``nuav2 infos`` puts into can_bus[7:16]."""
+    import json
+
+    from nuscenes.can_bus.can_bus_api import NuScenesCanBus
+
+    can = NuScenesCanBus(dataroot=str(curved_db))
+    v = curved_db / VERSION
+    scenes = {s["token"]: s["name"] for s in json.loads((v / "scene.json").read_text())}
+    sample_data = json.loads((v / "sample_data.json").read_text())
+    lidar_sweeps = [sd for sd in sample_data if sd["fileformat"] == "pcd"]
+    by_scene = {name: can.get_messages(name, "pose") for name in scenes.values()}
+    assert sum(len(m) for m in by_scene.values()) == len(lidar_sweeps)
+    for messages in by_scene.values():
+        assert [m["utime"] for m in messages] == sorted({m["utime"] for m in messages})
+        assert list(messages[0]) == ["accel", "orientation", "pos", "rotation_rate", "utime", "vel"]
+    for info in curved_infos:
+        at = {m["utime"]: m for m in by_scene[scenes[info["scene_token"]]]}[info["timestamp"]]
+        np.testing.assert_allclose(at["pos"], info["ego2global_translation"], rtol=0, atol=1e-9)
+        assert at["orientation"] == list(info["ego2global_rotation"])
+        np.testing.assert_allclose(at["accel"] + at["rotation_rate"] + at["vel"], info["can_bus"][7:16],
+                                   rtol=0, atol=1e-9)

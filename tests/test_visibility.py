@@ -142,3 +142,15 @@ def test_real_fixture_log_gets_measured_tokens(native_fixture_db: Path, fixture_
     cost = measure_cost(fixture_log, None, 1.0, skip_first=False)
     print("fixture visibility cost", json.dumps(cost))
     assert cost["samples_timed"] == 1 and cost["points_per_sample"] > 50_000
+
+
+def test_a_database_without_cameras_keeps_the_unknown_token(synth_log: Path, tmp_path: Path):
+    """Nothing to measure in: every box gets "4", as before visibility was measured."""
+    import shutil
+
+    log_dir = tmp_path / "src" / synth_log.parent.name / synth_log.name
+    shutil.copytree(synth_log, log_dir,
+                    ignore=lambda d, names: ["cameras"] if Path(d).name == "sensors" else [])
+    convert(log_dir.parent, tmp_path / "db", "--allow-missing-cameras")
+    anns = json.loads((tmp_path / "db" / "v1.0-nuav2" / "sample_annotation.json").read_text())
+    assert anns and {a["visibility_token"] for a in anns} == {"4"}

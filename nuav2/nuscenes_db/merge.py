@@ -14,6 +14,7 @@ from pathlib import Path
 
 from nuav2.atomic import atomic_directory
 from nuav2.nuscenes_db import shards as sh
+from nuav2.nuscenes_db.can_bus import lidar_pose_messages, write_pose_file
 from nuav2.nuscenes_db.tables import (
     PER_LOG_TABLES,
     TABLE_NAMES,
@@ -49,7 +50,8 @@ def _write_records(path: Path, chunks: Iterable[list[dict]]) -> int:
 
 def merge_shards(dataroot: Path, version: str, shard_paths: dict[str, Path],
                  scene_names: dict[str, str]) -> dict[str, int]:
-    """Write the 13 tables + ``splits.json`` + ``nuav2_logs.json``; returns record counts per table.
+    """Write the 13 tables + ``splits.json`` + ``nuav2_logs.json``, then each scene's CAN bus pose
+    messages (``can_bus.py``); returns record counts per table.
 
     ``shard_paths`` maps log id -> complete shard directory; ``scene_names`` gives each log's
     ``scene-NNNN`` name and fixes the order.
@@ -94,4 +96,11 @@ def merge_shards(dataroot: Path, version: str, shard_paths: dict[str, Path],
         (tmp / SPLITS_FILE).write_text(json.dumps(splits, indent=1))
         logs = [{**metas[log_id]["meta"], "scene_name": scene_names[log_id]} for log_id in order]
         (tmp / LOGS_FILE).write_text(json.dumps(logs, indent=1, ensure_ascii=False))
+    lidar_sensors = {r["token"] for r in shared["sensor"] if r["modality"] == "lidar"}
+    for log_id in order:
+        calib = sh.read_table(shard_paths[log_id], "calibrated_sensor")
+        lidar_calib = {r["token"] for r in calib if r["sensor_token"] in lidar_sensors}
+        messages = lidar_pose_messages(sh.read_table(shard_paths[log_id], "sample_data"),
+                                       sh.read_table(shard_paths[log_id], "ego_pose"), lidar_calib)
+        write_pose_file(dataroot, scene_names[log_id], messages)
     return counts
