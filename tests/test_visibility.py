@@ -54,8 +54,9 @@ def test_a_box_alone_in_view_is_fully_visible_and_one_behind_the_camera_is_not()
 def test_boxes_hide_boxes_behind_them_in_proportion():
     hidden = vis([box(20, 0), box(8, 0, lwh=(2, 4, 4))])
     assert hidden[0] == 0.0 and hidden[1] == 1.0
-    # The near box covers the left half (ego +y) of the far one's image.
-    half = vis([box(20, 0), box(10, 1.0, lwh=(1.0, 2.0, 4.0))])
+    # The near box's core (OCCLUDER_CORE of it: y 0 to 3.6 m) covers the left half (ego +y) of the far
+    # one's image.
+    half = vis([box(20, 0), box(10, 1.8, lwh=(1.0, 4.0, 4.0))])
     assert 0.35 < half[0] < 0.65 and visibility_token(half[0]) in ("1", "2")
     assert half[1] == 1.0
 
@@ -154,3 +155,18 @@ def test_a_database_without_cameras_keeps_the_unknown_token(synth_log: Path, tmp
     convert(log_dir.parent, tmp_path / "db", "--allow-missing-cameras")
     anns = json.loads((tmp_path / "db" / "v1.0-nuav2" / "sample_annotation.json").read_text())
     assert anns and {a["visibility_token"] for a in anns} == {"4"}
+
+
+def test_a_rider_and_its_bicycle_do_not_hide_each_other():
+    """AV2 labels a cyclist and the bicycle as two intersecting boxes (both vehicle.bicycle here)."""
+    bike = box(10, 0, 0.5, lwh=(1.8, 0.6, 1.0))
+    rider = box(10, 0, 1.2, lwh=(0.8, 0.6, 1.7))
+    np.testing.assert_allclose(vis([bike, rider]), [1.0, 1.0])
+    # Apart, the nearer one hides the farther one.
+    assert vis([box(20, 0, 1.0, lwh=(1.8, 0.6, 1.9)), box(10, 0, 1.2, lwh=(0.8, 1.0, 3.0))])[0] < 0.4
+
+
+def test_a_box_around_the_camera_hides_nothing():
+    """A label error can put the camera inside a box; that box then must not blank the whole image."""
+    around = box(0.0, 0.0, 1.5, lwh=(3, 3, 3))
+    np.testing.assert_allclose(vis([around, box(20, 0), box(15, 5)])[1:], [1.0, 1.0])

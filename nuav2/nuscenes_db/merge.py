@@ -50,8 +50,8 @@ def _write_records(path: Path, chunks: Iterable[list[dict]]) -> int:
 
 def merge_shards(dataroot: Path, version: str, shard_paths: dict[str, Path],
                  scene_names: dict[str, str]) -> dict[str, int]:
-    """Write the 13 tables + ``splits.json`` + ``nuav2_logs.json``, then each scene's CAN bus pose
-    messages (``can_bus.py``); returns record counts per table.
+    """Write each scene's CAN bus pose messages (``can_bus.py``), then the 13 tables + ``splits.json`` +
+    ``nuav2_logs.json``; returns record counts per table.
 
     ``shard_paths`` maps log id -> complete shard directory; ``scene_names`` gives each log's
     ``scene-NNNN`` name and fixes the order.
@@ -80,9 +80,18 @@ def merge_shards(dataroot: Path, version: str, shard_paths: dict[str, Path],
 
     counts: dict[str, int] = {}
     dataroot = Path(dataroot)
+    shared = {"category": category_table(), "attribute": attribute_table(),
+              "visibility": visibility_table(), "sensor": sensor_table(channels)}
+    # The CAN bus files first: a merge killed after them leaves the previous tables, whose scenes keep
+    # their names (barring scene_names.py's rare hash collision) and so get the same files again.
+    lidar_sensors = {r["token"] for r in shared["sensor"] if r["modality"] == "lidar"}
+    for log_id in order:
+        calib = sh.read_table(shard_paths[log_id], "calibrated_sensor")
+        lidar_calib = {r["token"] for r in calib if r["sensor_token"] in lidar_sensors}
+        messages = lidar_pose_messages(sh.read_table(shard_paths[log_id], "sample_data"),
+                                       sh.read_table(shard_paths[log_id], "ego_pose"), lidar_calib)
+        write_pose_file(dataroot, scene_names[log_id], messages)
     with atomic_directory(dataroot / version) as tmp:
-        shared = {"category": category_table(), "attribute": attribute_table(),
-                  "visibility": visibility_table(), "sensor": sensor_table(channels)}
         for table in TABLE_NAMES:
             chunks = [shared[table]] if table in shared else per_log(table)
             counts[table] = _write_records(tmp / f"{table}.json", chunks)
@@ -96,11 +105,4 @@ def merge_shards(dataroot: Path, version: str, shard_paths: dict[str, Path],
         (tmp / SPLITS_FILE).write_text(json.dumps(splits, indent=1))
         logs = [{**metas[log_id]["meta"], "scene_name": scene_names[log_id]} for log_id in order]
         (tmp / LOGS_FILE).write_text(json.dumps(logs, indent=1, ensure_ascii=False))
-    lidar_sensors = {r["token"] for r in shared["sensor"] if r["modality"] == "lidar"}
-    for log_id in order:
-        calib = sh.read_table(shard_paths[log_id], "calibrated_sensor")
-        lidar_calib = {r["token"] for r in calib if r["sensor_token"] in lidar_sensors}
-        messages = lidar_pose_messages(sh.read_table(shard_paths[log_id], "sample_data"),
-                                       sh.read_table(shard_paths[log_id], "ego_pose"), lidar_calib)
-        write_pose_file(dataroot, scene_names[log_id], messages)
     return counts
