@@ -9,7 +9,8 @@ that depend on it, so one defect does not cascade into many reports.
 
 By concern: ``validate_tables`` (loading, typed columns), ``validate_records`` (fields, keys,
 values), ``validate_links`` (prev/next chains, key frames), ``validate_files`` (data files,
-images), ``validate_map`` (map expansion JSON), ``validate_report`` (the result).
+images), ``validate_map`` (map expansion JSON), ``validate_can_bus`` (CAN bus pose files),
+``validate_report`` (the result).
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ import gc
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
+from nuav2.nuscenes_db.validate_can_bus import CanBusChecks
 from nuav2.nuscenes_db.validate_files import FileChecks, image_size
 from nuav2.nuscenes_db.validate_links import LinkChecks
 from nuav2.nuscenes_db.validate_map import devkit_load_maps, validate_map_expansion
@@ -57,7 +59,7 @@ def _gc_paused() -> Iterator[None]:
             gc.enable()
 
 
-class _Checker(RecordChecks, LinkChecks, FileChecks):
+class _Checker(RecordChecks, LinkChecks, FileChecks, CanBusChecks):
     """Runs every check over one database; a crashing check is reported, never raised."""
 
     def run(self, check_files: bool, check_images: bool, devkit: bool, decode_images: bool = False) -> None:
@@ -73,7 +75,7 @@ class _Checker(RecordChecks, LinkChecks, FileChecks):
             ("sample list", self._check_sample_list), ("sample_data lists", self._check_sample_data_lists),
             ("annotation lists", self._check_annotation_lists), ("maps", self._check_map_table),
             ("splits", self._check_splits), ("optional tables", self._check_optional_tables),
-            ("map expansion", self._check_map_expansions)]
+            ("map expansion", self._check_map_expansions), ("CAN bus", self._check_can_bus)]
         if check_files:
             steps.append(("files", lambda: self._check_files(check_images, decode_images)))
         if devkit:
