@@ -112,14 +112,13 @@ def measure_cost(log_dir: Path, rig_name: str | None, scale: float, skip_first: 
     from converters.av2.reader import read_log
     from nuav2.geometry import egoS_T_egoT_from_heights
     from nuav2.nuscenes_db.annotations import key_boxes
-    from nuav2.nuscenes_db.visibility import VisibilityCamera, box_visibility, occluder_points
+    from nuav2.nuscenes_db.visibility import box_visibility, cameras_in_source_ego, occluder_points
     from nuav2.rig import load_rig
 
     scene = read_log(Path(log_dir))
     rig = scene.rig.with_origin_height(0.0) if rig_name is None else load_rig(rig_name, scale)
     egoS_T_egoT = egoS_T_egoT_from_heights(scene.rig.origin_height_m, rig.origin_height_m)
-    cams = [VisibilityCamera(c.K, egoS_T_egoT @ c.ego_T_cam, c.width, c.height,
-                             c.ego_mask() if c.ego_mask_polygons else None) for c in rig.cameras]
+    cams = cameras_in_source_ego(rig.cameras, egoS_T_egoT)
     boxes = key_boxes(scene, scene.sweep_timestamps_ns, np.eye(4))
     occ_s, ray_s, samples, n_boxes, n_points = 0.0, 0.0, 0, 0, 0
     first = True

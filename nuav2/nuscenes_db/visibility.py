@@ -13,12 +13,14 @@ counts as the object's.
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
 
 from nuav2.geometry import F64, T_inverse
+from nuav2.rig import CameraSpec
 
 NEAR_M = 0.1  # rays start this far in front of the camera
 BOX_MARGIN_M = 0.3  # LiDAR points this close to a box belong to it (label error), not to an occluder
@@ -45,6 +47,13 @@ class VisibilityCamera:
     width: int
     height: int
     body_mask: np.ndarray | None = None
+
+
+def cameras_in_source_ego(cameras: Iterable[CameraSpec], egoS_T_egoT: F64) -> list[VisibilityCamera]:
+    """The output rig's cameras posed in the source ego frame (the frame of the boxes and the sweep),
+    with their ego-body masks."""
+    return [VisibilityCamera(c.K, egoS_T_egoT @ c.ego_T_cam, c.width, c.height,
+                             c.ego_mask() if c.ego_mask_polygons else None) for c in cameras]
 
 
 def visibility_token(fraction: float) -> str:
@@ -144,12 +153,13 @@ def box_visibility(ego_T_box: F64, size_lwh: F64, cameras: list[VisibilityCamera
     overlap = _boxes_overlap(np.ascontiguousarray(ego_T_box), half)
     visible = np.zeros(len(ego_T_box))
     total = np.zeros(len(ego_T_box))
+    if not len(ego_T_box):
+        return visible
     occ = np.ascontiguousarray(np.asarray(occluders_ego, np.float64).reshape(-1, 3))
     for cam in cameras:
-        if not len(ego_T_box):
-            break
         cam_T_ego = T_inverse(np.asarray(cam.ego_T_cam, np.float64))
         cam_T_box = np.ascontiguousarray(cam_T_ego @ ego_T_box)
+        # The camera centre in each box's frame: where every ray into that box starts.
         cam_in_box = box_T_ego[:, :3, :3] @ np.asarray(cam.ego_T_cam, np.float64)[:3, 3] + box_T_ego[:, :3, 3]
         skip = overlap | np.all(np.abs(cam_in_box) <= half, axis=1)[None, :]
         K = np.asarray(cam.K, np.float64)
@@ -158,8 +168,8 @@ def box_visibility(ego_T_box: F64, size_lwh: F64, cameras: list[VisibilityCamera
         zbuf = _occluder_depth(occ, np.ascontiguousarray(cam_T_ego), np.ascontiguousarray(K), w, h, cell)
         has_mask = cam.body_mask is not None
         mask = np.ascontiguousarray(cam.body_mask, np.bool_) if has_mask else np.zeros((1, 1), np.bool_)
-        _camera_pass(cam_T_box, half, core, skip, np.ascontiguousarray(K), w, h, zbuf, cell, mask, has_mask,
-                     visible, total)
+        _camera_pass(cam_T_box, np.ascontiguousarray(cam_in_box), half, core, skip, np.ascontiguousarray(K),
+                     w, h, zbuf, cell, mask, has_mask, visible, total)
     return np.where(total > 0, visible / np.where(total > 0, total, 1.0), 0.0).clip(0.0, 1.0)
 
 
@@ -186,14 +196,13 @@ def _occluder_depth(occ_ego, cam_T_ego, K, width, height, cell):  # pragma: no c
 
 
 @njit(cache=True, nogil=True)
-def _entry(cam_T_box, half, b, dx, dy, dz):  # pragma: no cover
+def _entry(cam_T_box, cam_in_box, half, b, dx, dy, dz):  # pragma: no cover
     """Ray parameter (= camera z-depth, the ray's z is 1) where the camera ray (dx, dy, dz) enters box
     ``b``, NEAR_M if the camera is inside it, -1 if it misses."""
     t_lo, t_hi = NEAR_M, np.inf
     for k in range(3):
-        # Box frame: o = -R^T t, d = R^T ray (R, t = cam_T_box).
-        o = -(cam_T_box[b, 0, k] * cam_T_box[b, 0, 3] + cam_T_box[b, 1, k] * cam_T_box[b, 1, 3]
-              + cam_T_box[b, 2, k] * cam_T_box[b, 2, 3])
+        # Box frame: the ray starts at the camera centre there and runs along R^T ray (R = cam_T_box's).
+        o = cam_in_box[b, k]
         d = cam_T_box[b, 0, k] * dx + cam_T_box[b, 1, k] * dy + cam_T_box[b, 2, k] * dz
         if abs(d) < 1e-12:
             if abs(o) > half[b, k]:
@@ -209,8 +218,8 @@ def _entry(cam_T_box, half, b, dx, dy, dz):  # pragma: no cover
 
 
 @njit(cache=True, nogil=True)
-def _camera_pass(cam_T_box, half, core, skip, K, width, height, zbuf, cell, mask, check_mask, visible,
-                 total):  # pragma: no cover
+def _camera_pass(cam_T_box, cam_in_box, half, core, skip, K, width, height, zbuf, cell, mask, check_mask,
+                 visible, total):  # pragma: no cover
     """Adds each box's sampled area in this camera to ``total`` and its unhidden part to ``visible``."""
     nb = cam_T_box.shape[0]
     gw = (width + cell - 1) // cell
@@ -252,7 +261,7 @@ def _camera_pass(cam_T_box, half, core, skip, K, width, height, zbuf, cell, mask
                 v = rect[b, 2] + (j + 0.5) * rh / n
                 dy = (v - cy) / fy
                 dx = (u - cx - skew * dy) / fx
-                t = _entry(cam_T_box, half, b, dx, dy, 1.0)
+                t = _entry(cam_T_box, cam_in_box, half, b, dx, dy, 1.0)
                 if t < 0.0:
                     continue
                 total[b] += weight
@@ -266,7 +275,7 @@ def _camera_pass(cam_T_box, half, core, skip, K, width, height, zbuf, cell, mask
                     if o == b or skip[b, o] or u < rect[o, 0] or u > rect[o, 1] or v < rect[o, 2] \
                             or v > rect[o, 3]:
                         continue
-                    to = _entry(cam_T_box, core, o, dx, dy, 1.0)
+                    to = _entry(cam_T_box, cam_in_box, core, o, dx, dy, 1.0)
                     if to >= 0.0 and to < t - BOX_ORDER_M:
                         hidden = True
                         break

@@ -38,7 +38,12 @@ from nuav2.nuscenes_db.lidar_top import lidar_T_egoS, sweep_to_pcd_rows, write_p
 from nuav2.nuscenes_db.map_frame import OFFSET_KEY, MapFrame, map_frame_for
 from nuav2.nuscenes_db.tables import PER_LOG_TABLES
 from nuav2.nuscenes_db.tokens import make_token
-from nuav2.nuscenes_db.visibility import VisibilityCamera, box_visibility, occluder_points
+from nuav2.nuscenes_db.visibility import (
+    VisibilityCamera,
+    box_visibility,
+    cameras_in_source_ego,
+    occluder_points,
+)
 from nuav2.progress import progress_bar
 from nuav2.rig import Rig
 from nuav2.scene import SceneLog, VectorMap
@@ -190,9 +195,7 @@ def _write_log(scene: SceneLog, out_rig: Rig, images: ImageSource, files: _Files
     city_T_egoT_of = {(f.channel, f.index): T for f, T in zip(all_frames, city_T_egoT)}
 
     boxes = ann_mod.key_boxes(scene, timeline.key_ns, global_T_city)
-    view_cams = [VisibilityCamera(cam.K, egoS_T_egoT @ cam.ego_T_cam, cam.width, cam.height,
-                                  cam.ego_mask() if cam.ego_mask_polygons else None)
-                 for cam in (out_rig.camera(ch) for ch in shots)]
+    view_cams = cameras_in_source_ego((out_rig.camera(ch) for ch in shots), egoS_T_egoT)
     filenames = _write_lidar_top(scene, timeline, lidar_ch, lidar_T_egoS(egoT_T_lidar, egoS_T_egoT), boxes,
                                  view_cams, files, options)
     filenames.update(_write_cameras(scene, timeline, out_rig, images, shots, city_T_egoT_of, files, options))
