@@ -37,6 +37,10 @@ def test_exposure_costs_warp_and_the_table_says_how_it_was_measured(tmp_path):
     change = exposed["delta"]["psnr_db_whole"]
     assert exposed["psnr_db_whole"] == pytest.approx(easy["psnr_db_whole"] + change, abs=2e-3)
     per_seed = result["per_seed"]["+exposure"][0]
+    # scored against the truth at the log's recorded mean exposure too; easy has none, so it is the raw PSNR
+    assert len(per_seed["modes"]["warp"]["reference_log_gain"]) == 3
+    assert exposed["psnr_ref_db_whole"] != exposed["psnr_db_whole"]
+    assert easy["psnr_ref_db_whole"] == easy["psnr_db_whole"]
     assert per_seed["modes"]["warp"]["convert"]["cpu_s"] > 0 and per_seed["frames"] == 3
     assert "synth_speed" not in result  # --speed-seconds 0
     md = markdown_table(result)
@@ -60,5 +64,5 @@ def test_cli_rejects_unknown_factor_and_renders_a_saved_result(tmp_path, capsys)
     assert cli_main(["bench", "ablation", "--from-json", str(tmp_path / "r.json"), "--markdown",
                      str(tmp_path / "t.md"), "--json"]) == 0
     md = (tmp_path / "t.md").read_text()
-    assert "| easy | 25.00 | – | 30.00 | 0.900 | 0.950 | 0.80 | 3 (1) |" in md  # no gauge PSNR in that JSON
+    assert "| easy | 25.00 | – | – | 30.00 | 0.900 | 0.950 | 0.80 | 3 (1) |" in md  # no gauge or ref. PSNR
     assert "| hard | 1.50 | 0.70 | 3.0-4.5 |" in md

@@ -29,8 +29,9 @@ from nuav2.synth.config import FACTORS
 ROW_EASY = "easy"
 EXPOSURE_GAINS = "exposure_gains"  # the exposure factor without its sensor noise and extra JPEG compression
 ABLATION_FACTORS = (*FACTORS, EXPOSURE_GAINS)
-# raw PSNR, PSNR after one per-channel gain per log (the exposure gauge, nuav2.evaluate.against_world), SSIM
-SCORE_KEYS = ("psnr_db", "psnr_gauge_db", "ssim")
+# raw PSNR, PSNR after one per-channel gain per log (the exposure gauge, nuav2.evaluate.against_world), PSNR
+# after the log's true mean exposure is taken out (nuav2.synth.camera_effects.reference_gain), SSIM
+SCORE_KEYS = ("psnr_db", "psnr_gauge_db", "psnr_ref_db", "ssim")
 
 
 @dataclass(frozen=True)
@@ -76,14 +77,17 @@ def _timed(fn, *args, **kwargs):
                  "load_1min": round(load_1min(), 2)}
 
 
-def _score(dataroot: Path, version: str, world, vector_map) -> tuple[dict, list]:
+def _score(dataroot: Path, version: str, world, vector_map, reference_gain) -> tuple[dict, list]:
     from nuav2.evaluate.against_world import key_camera_images, log_offsets, score_against_world
 
     images = key_camera_images(dataroot, version, log_offsets(dataroot, version))
-    s = score_against_world(images, world, vector_map=vector_map).summary()
+    s = score_against_world(images, world, vector_map=vector_map, reference_gain=reference_gain).summary()
     return {"psnr_db": {r: s["psnr_db"][r] for r in ("whole", "ground")},
             "psnr_gauge_db": {r: s["psnr_gauge_db"][r] for r in ("whole", "ground")},
+            "psnr_ref_db": {r: s["psnr_ref_db"][r] for r in ("whole", "ground")},
             "gauge_log_gain": s["gauge_log_gain"],
+            "reference_log_gain": None if reference_gain is None else [
+                round(float(x), 4) for x in np.log(reference_gain)],
             "ssim": {r: s["ssim"][r] for r in ("whole", "ground")},
             "paint_median_px": s["paint_median_px"], "paint_median_px_truth": s.get("paint_median_px_truth"),
             "images": s["images"]}, images
@@ -94,9 +98,11 @@ def run_row(seed: int, cfg, opts: AblationOptions, root: Path) -> tuple[dict, di
     from converters.av2 import read_log
     from nuav2.convert import ConvertOptions, convert_av2
     from nuav2.synth import generate_log, load_world
+    from nuav2.synth.camera_effects import log_reference_gain
 
     log_dir, synth_t = _timed(generate_log, root / "av2", seed=seed, config=cfg)
     world = load_world(log_dir)
+    reference_gain = log_reference_gain(log_dir)
     vector_map = read_log(log_dir).vector_map
     rec = {"seed": seed, "log_id": world.log_id, "layout": world.layout_name, "manoeuvre": world.manoeuvre,
            "frames": cfg.n_sweeps, "synth": synth_t, "modes": {}}
@@ -109,7 +115,7 @@ def run_row(seed: int, cfg, opts: AblationOptions, root: Path) -> tuple[dict, di
         if report.failed:
             rec["modes"][mode] = {"status": f"failed: {report.failed}"}
             continue
-        scores, images = _score(dataroot, options.version, world, vector_map)
+        scores, images = _score(dataroot, options.version, world, vector_map, reference_gain)
         rec["modes"][mode] = {"status": "ok", "convert": conv_t,
                               "seconds_per_frame": round(conv_t["wall_s"] / cfg.n_sweeps, 3), **scores}
         written[mode] = images
@@ -270,7 +276,8 @@ def preset_picture(path: Path, av2_root: Path, written: dict, rec: dict, height:
 def markdown_table(result: dict) -> str:
     """The docs' table: per row, each mode's scores and their change against easy; how it was measured."""
     modes = result["options"]["modes"]
-    head = ["row"] + [f"{m} {c}" for m in modes for c in ("PSNR dB (Δ)", "gauge PSNR (Δ)", "ground PSNR (Δ)",
+    head = ["row"] + [f"{m} {c}" for m in modes for c in ("PSNR dB (Δ)", "gauge PSNR (Δ)", "ref. PSNR (Δ)",
+                                                           "ground PSNR (Δ)",
                                                            "SSIM (Δ)",
                                                            "ground SSIM (Δ)", "paint px (Δ)",
                                                            "s wall (CPU)")]
@@ -289,6 +296,7 @@ def markdown_table(result: dict) -> str:
             m = row.get(mode, {})
             cells += [cell(m, "psnr_db_whole", "psnr_db_whole"),
                       cell(m, "psnr_gauge_db_whole", "psnr_gauge_db_whole"),
+                      cell(m, "psnr_ref_db_whole", "psnr_ref_db_whole"),
                       cell(m, "psnr_db_ground", "psnr_db_ground"),
                       cell(m, "ssim_whole", "ssim_whole"), cell(m, "ssim_ground", "ssim_ground"),
                       cell(m, "paint_px", "paint_px"),
@@ -300,7 +308,10 @@ def markdown_table(result: dict) -> str:
     during = f", {min(row_loads):.1f}-{max(row_loads):.1f} during the conversions" if row_loads else ""
     lines += ["", f"Measured with `{result['command']}`: {result['how']}. Gauge PSNR: after one gain per "
                   "colour channel for the whole log, fitted to the truth (the reference exposure's offset "
-                  "from the world's unit exposure, which no image reveals). Load (1 min) "
+                  "from the world's unit exposure, which no image reveals). Ref. PSNR: after the log's "
+                  "true mean exposure (the geometric mean of the cameras' recorded gains and white balance, "
+                  "nothing fitted) is taken out of the images; the raw PSNR where the cameras had no "
+                  "exposure effects. Load (1 min) "
                   f"{load[0]:.1f} at the start, {load[1]:.1f} at the end{during}, on "
                   f"{result['machine_start']['cpu_count']} cores."]
     table = "\n".join(lines) + "\n"

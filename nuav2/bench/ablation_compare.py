@@ -7,8 +7,10 @@ recovered; the goals of the robustness issue are evaluated on the same numbers:
 
 - each of ``exposure``, ``label_noise``, ``lidar_noise``: at least two thirds of its loss recovered;
 - ``exposure`` alone costs less than 0.5 dB after, judged on the raw PSNR and, beside it, on the PSNR
-  after one gain per colour channel per log (``psnr_gauge_db``): harmonised images sit at the log's
-  mean exposure, whose offset from the world's unit exposure no image can reveal;
+  after one gain per colour channel per log (``psnr_gauge_db``, fitted to the truth) and on the PSNR
+  after the log's true mean exposure is taken out (``psnr_ref_db``, from the cameras' recorded gains,
+  nothing fitted): harmonised images sit at the log's mean exposure, whose offset from the world's unit
+  exposure no image can reveal;
 - the same on the ``+exposure_gains`` row (drifting gains, white balance and vignetting without the
   sensor noise and JPEG compression that no gain removes): exposure drift alone;
 - on ``hard``, render mode's ground-region PSNR within 2 dB of its ``easy`` figure.
@@ -23,7 +25,8 @@ RECOVER_FACTORS = ("exposure", "label_noise", "lidar_noise")
 RECOVER_SHARE = 2.0 / 3.0
 EXPOSURE_MAX_LOSS_DB = 0.5
 HARD_GROUND_MAX_GAP_DB = 2.0
-GAUGES = (("psnr_db", ""), ("psnr_gauge_db", ", one gain per colour channel per log removed"))
+GAUGES = (("psnr_db", ""), ("psnr_gauge_db", ", one gain per colour channel per log removed"),
+          ("psnr_ref_db", ", the log's true mean exposure taken out (nothing fitted)"))
 
 
 def lost_db(result: dict, row: str, mode: str, region: str = "whole",
@@ -85,13 +88,11 @@ def goals(before: dict, after: dict) -> list[dict]:
                                 f"{EXPOSURE_MAX_LOSS_DB} dB after compensation{what}",
                         "mode": mode, "lost_after_db": a,
                         "met": None if a is None else a < EXPOSURE_MAX_LOSS_DB})
-        a = lost_db(after, "+exposure", mode)
-        out.append({"goal": f"exposure alone costs < {EXPOSURE_MAX_LOSS_DB} dB after compensation",
-                    "mode": mode, "lost_after_db": a, "met": None if a is None else a < EXPOSURE_MAX_LOSS_DB})
-        g = lost_db(after, "+exposure", mode, metric="psnr_gauge_db")
-        out.append({"goal": f"exposure alone costs < {EXPOSURE_MAX_LOSS_DB} dB after compensation, one gain "
-                            "per colour channel per log removed (the reference exposure's gauge)",
-                    "mode": mode, "lost_after_db": g, "met": None if g is None else g < EXPOSURE_MAX_LOSS_DB})
+        for metric, what in GAUGES:
+            a = lost_db(after, "+exposure", mode, metric=metric)
+            out.append({"goal": f"exposure alone costs < {EXPOSURE_MAX_LOSS_DB} dB after compensation{what}",
+                        "mode": mode, "lost_after_db": a,
+                        "met": None if a is None else a < EXPOSURE_MAX_LOSS_DB})
     gap = lost_db(after, "hard", "render", "ground")
     out.append({"goal": f"hard: render ground PSNR within {HARD_GROUND_MAX_GAP_DB} dB of easy",
                 "mode": "render", "lost_after_db": gap,

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from nuav2.evaluate.image_metrics import region_metrics
+from nuav2.evaluate.image_metrics import psnr, region_metrics
 from nuav2.geometry import F64, T_from_quat_trans, translation_T
 from nuav2.maptr.dataset import load_image_rgb
 from nuav2.rig import CameraSpec
@@ -75,13 +75,18 @@ class RegionScores:
     # per camera and region, per image: (4, 3) sums over the region's pixels of t^2, t*w, w^2, 1 per
     # colour channel (t truth, w written): enough to score the image after any per-channel gain
     gauge_sums: dict[str, dict[str, list[np.ndarray]]] = field(default_factory=dict)
+    # (3,) linear gain of the log's mean exposure (nuav2.synth.camera_effects.reference_gain): also score the
+    # images brought from that exposure to the truth's unit exposure (``psnr_ref_db``: the log's one offset
+    # taken out with its true value, the errors weighed at the truth's brightness as every other row's
+    # are); None: the truth is at the images' exposure
+    reference_gain: np.ndarray | None = None
 
     @staticmethod
-    def for_map(vector_map: VectorMap | None) -> RegionScores:
+    def for_map(vector_map: VectorMap | None, reference_gain: np.ndarray | None = None) -> RegionScores:
         from nuav2.bench.paint_alignment import painted_boundary_points
 
         pts = painted_boundary_points(vector_map) if vector_map is not None else None
-        return RegionScores(pts if pts is not None and len(pts[0]) else None)
+        return RegionScores(pts if pts is not None and len(pts[0]) else None, reference_gain=reference_gain)
 
     def _paint(self, img: np.ndarray, camera: CameraSpec, city_T_cam: F64) -> np.ndarray:
         from nuav2.bench.paint_alignment import paint_offsets_px
@@ -102,11 +107,18 @@ class RegionScores:
                 sums.setdefault(region, []).append(np.stack([(sel_t * sel_t).sum(0), (sel_t * sel_w).sum(0),
                                                              (sel_w * sel_w).sum(0),
                                                              np.full(3, float(len(sel_t)))]))
+        at_unit = None
+        if self.reference_gain is not None:
+            from nuav2.synth.camera_effects import expose
+
+            at_unit = expose(img, 1.0 / np.asarray(self.reference_gain, np.float64))
         for region, m in got.items():
             if m is not None:
-                r = cam.setdefault(region, {"psnr_db": [], "ssim": []})
+                r = cam.setdefault(region, {"psnr_db": [], "ssim": [], "psnr_ref_db": []})
                 r["psnr_db"].append(m["psnr_db"])
                 r["ssim"].append(m["ssim"])
+                r["psnr_ref_db"].append(m["psnr_db"] if at_unit is None else
+                                        psnr(at_unit, truth, data_range=255.0, mask=masks[region]))
         if self.paint_points is not None:
             self.paint.append(self._paint(img, camera, city_T_cam))
             if with_paint_floor:
@@ -141,10 +153,11 @@ class RegionScores:
     def summary(self) -> dict:
         """Means per camera and region, then over cameras (each camera weighs the same); paint medians."""
         per_camera = {ch: {region: {"psnr_db": _mean(v["psnr_db"]), "ssim": _mean(v["ssim"]),
-                                    "images": len(v["psnr_db"])} for region, v in regions.items()}
+                                    "psnr_ref_db": _mean(v["psnr_ref_db"]), "images": len(v["psnr_db"])}
+                           for region, v in regions.items()}
                       for ch, regions in self.values.items()}
         out: dict = {"images": sum(c["whole"]["images"] for c in per_camera.values() if "whole" in c)}
-        for metric in ("psnr_db", "ssim"):
+        for metric in ("psnr_db", "ssim", "psnr_ref_db"):
             out[metric] = {region: _mean([c[region][metric] for c in per_camera.values() if region in c])
                            for region in REGIONS}
         gain = self.gauge_gain()
@@ -199,10 +212,12 @@ def key_camera_images(dataroot: Path, version: str, log_offsets: dict[str, np.nd
 
 
 def score_against_world(images: list[WrittenImage], world, every: int = 1,
-                        vector_map: VectorMap | None = None) -> RegionScores:
+                        vector_map: VectorMap | None = None,
+                        reference_gain: np.ndarray | None = None) -> RegionScores:
     """Per-channel, per-region PSNR/SSIM of written images vs the world's render at the same pose and
-    time; lane-paint offsets (and the truth's floor) when ``vector_map`` is given."""
-    scores = RegionScores.for_map(vector_map)
+    time; lane-paint offsets (and the truth's floor) when ``vector_map`` is given; PSNR after the log's
+    true mean exposure is taken out too when ``reference_gain`` is (``RegionScores.reference_gain``)."""
+    scores = RegionScores.for_map(vector_map, reference_gain)
     for im in images[::every]:
         truth, labels = truth_view(world, im.camera, im.city_T_cam, im.timestamp_ns)
         img = load_image_rgb(str(im.path))

@@ -5,16 +5,23 @@ brightness with a lag and drifts over seconds, its own white balance, lens vigne
 sensor noise (read noise plus shot noise), and the JPEGs are more compressed (``camera_noise=False``
 in the config keeps the gains and drops the noise and the extra compression, to tell their costs
 apart). The ground-truth renderer (render.py) never applies any of this: the truth is unit
-exposure, neutral white balance, no vignetting, no noise.
+exposure, neutral white balance, no vignetting, no noise. What the cameras did is recorded
+(:meth:`CameraEffects.describe`, written beside the log as ``CAMERA_EFFECTS_FILE``) so that benchmarks
+can take the log's own mean exposure out of the images before scoring them against the truth
+(:func:`reference_gain`, :func:`expose`).
 """
 
 from __future__ import annotations
 
+import json
 import zlib
+from pathlib import Path
 
 import numpy as np
 
 from nuav2.rig import CameraSpec
+
+CAMERA_EFFECTS_FILE = "synthetic_camera_effects.json"  # beside synthetic_world.json in a log with `exposure`
 
 GAMMA = 2.2
 AE_TARGET = 0.17  # mean linear luminance the auto-exposure aims for
@@ -41,6 +48,7 @@ class CameraEffects:
                 "vignette": rng.uniform(0.4, 0.65),
             }
         self.gain: dict[str, float] = {}
+        self.applied: dict[str, list[tuple[int, float]]] = {ch: [] for ch in sorted(channels)}  # (ts, gain)
         self._vignette: dict[str, np.ndarray] = {}
 
     def gain_for(self, channel: str, linear: np.ndarray, valid: np.ndarray, t_s: float) -> float:
@@ -61,6 +69,7 @@ class CameraEffects:
         linear = (img.astype(np.float32) / 255.0) ** GAMMA
         valid = ~cam.ego_mask() if cam.ego_mask_polygons else np.ones(img.shape[:2], bool)
         gain = self.gain_for(cam.channel, linear, valid, t_s)
+        self.applied[cam.channel].append((int(timestamp_ns), gain))
         vig = self._vignette.get(cam.channel)
         if vig is None or vig.shape != img.shape[:2]:
             h, w = img.shape[:2]
@@ -81,3 +90,41 @@ class CameraEffects:
         sigma = READ_NOISE + SHOT_NOISE * np.sqrt(out)
         out = out + sigma * rng.standard_normal(out.shape, dtype=np.float32)
         return np.clip(np.rint(out), 0, 255).astype(np.uint8)
+
+    def describe(self) -> dict:
+        """What the cameras did (JSON-able): per camera its white balance, vignetting strength and the
+        exposure gain of every image it took, and the log's :func:`reference_gain`."""
+        cams = {ch: {"white_balance": [float(x) for x in self.params[ch]["wb"]],
+                     "vignette": float(self.params[ch]["vignette"]),
+                     "images": [[ts, g] for ts, g in self.applied[ch]]} for ch in self.params}
+        return {"cameras": cams, "reference_gain": [float(x) for x in reference_gain(cams)]}
+
+
+def reference_gain(cameras: dict) -> np.ndarray:
+    """(3,) linear gain per colour channel of the log's mean exposure: the geometric mean over every image
+    of its exposure gain times its camera's white balance (vignetting is 1 at the image centre).
+
+    An image compensated to the log's own mean exposure is the truth at this gain (``expose(image, 1 /
+    gain)`` brings it to the truth's unit exposure): a single offset per log that no image reveals, since
+    the auto-exposure aims at a brightness, not at unit gain.
+    """
+    logs = [np.log(g) + np.log(np.asarray(c["white_balance"], np.float64))
+            for c in cameras.values() for _, g in c["images"]]
+    return np.exp(np.mean(logs, axis=0)) if logs else np.ones(3)
+
+
+def expose(img: np.ndarray, gain_rgb: np.ndarray) -> np.ndarray:
+    """The uint8 RGB image ``img`` at ``gain_rgb`` times its exposure (in linear light, clipped as a sensor
+    clips), as float32 8-bit values: the truth as a camera at that fixed exposure would see it."""
+    linear = (img.astype(np.float32) / 255.0) ** GAMMA
+    out = np.clip(linear * np.asarray(gain_rgb, np.float32)[None, None, :], 0.0, 1.0)
+    return (255.0 * out ** (1.0 / GAMMA)).astype(np.float32)
+
+
+def log_reference_gain(log_dir: str | Path) -> np.ndarray | None:
+    """:func:`reference_gain` of a synthetic log from its ``CAMERA_EFFECTS_FILE``; None for a log whose
+    cameras had no exposure effects (its truth is already at the images' exposure)."""
+    path = Path(log_dir) / CAMERA_EFFECTS_FILE
+    if not path.is_file():
+        return None
+    return reference_gain(json.loads(path.read_text())["cameras"])

@@ -26,7 +26,7 @@ import pyarrow.feather as feather
 from nuav2.atomic import atomic_directory
 from nuav2.geometry import T_inverse, T_to_quat_trans
 from nuav2.progress import progress_bar
-from nuav2.synth.camera_effects import EFFECTS_JPEG_QUALITY, CameraEffects
+from nuav2.synth.camera_effects import CAMERA_EFFECTS_FILE, EFFECTS_JPEG_QUALITY, CameraEffects
 from nuav2.synth.config import SynthConfig
 from nuav2.synth.labels import label_errors
 from nuav2.synth.map_json import write_map_dir
@@ -163,6 +163,8 @@ def write_log(world: SyntheticWorld, log_dir: Path, split: str = "train", progre
                 _write(log_dir / "sensors" / "cameras" / cam.channel / f"{int(img_ts)}.jpg",
                        encode_jpeg(img, quality))
     frames_s = time.perf_counter() - t_start
+    if effects is not None:
+        _write(log_dir / CAMERA_EFFECTS_FILE, json.dumps(effects.describe(), indent=1).encode())
     if split != "test":  # AV2's test split ships without labels
         _write_feather(log_dir / "annotations.feather", annotations_table(rows))
     n = len(tl.sweeps_ns)
