@@ -77,14 +77,21 @@ def test_seeding_a_log_gives_a_scene_budget_and_coarse_plain_ground(tmp_path):
     cfg = InitConfig(max_background=20_000, ground_spacing_m=0.25, ground_radius_m=12.0, exposure=None)
     res = initial_scene(scene, views, cfg, sh_degree=0)
     st = res.stats
-    assert st["ground_seeds"] < 0.6 * st["ground_seeds_fine"]  # plain asphalt and sidewalk merged
+    seen_ground = st["ground_seeds"] - st["unseen_ground_seeds"]
+    assert seen_ground < 0.6 * st["ground_seeds_fine"]  # plain asphalt and sidewalk merged
     assert st["seeds_by_tier"]["textured ground"] > 200  # paint, kerbs and crossings stayed fine
     n_seeds = st["background_gaussians"] + st["object_gaussians"]
     assert res.budget == scene_budget(n_seeds, st["moving_tracks"], cfg.budget)
     from dataclasses import replace
 
     fixed = initial_scene(scene, views, replace(cfg, budget=None), sh_degree=0)
-    assert fixed.budget is None and fixed.stats["ground_seeds"] == fixed.stats["ground_seeds_fine"]
+    assert fixed.budget is None  # no merging: every fine seed, seen or filled, is its own Gaussian
+    fs = fixed.stats
+    assert fs["ground_seeds"] == fs["ground_seeds_fine"] + fs["unseen_ground_seeds"]
+    # The road under and behind the ego, which no image sees, is kept with its neighbours' colour
+    assert 0 < st["unseen_ground_seeds"] < st["ground_seeds"]
+    dropped = initial_scene(scene, views, replace(cfg, unseen_ground_reach_m=0.0), sh_degree=0).stats
+    assert dropped["unseen_ground_seeds"] == 0 and dropped["ground_seeds"] < st["ground_seeds"]
     # Over the cap: ground stays whole, structure near and far from the path is thinned alike (far seeds
     # are already sparse; dropping them first blanked the far side of a wide road).
     tiers = st["seeds_by_tier"]
@@ -96,3 +103,23 @@ def test_seeding_a_log_gives_a_scene_budget_and_coarse_plain_ground(tmp_path):
     assert capped["textured ground"] + capped["plain ground"] == ground
     for name in ("near structure", "far structure"):
         assert 0.3 * tiers[name] < capped[name] < 0.7 * tiers[name], name
+
+
+def test_unseen_ground_takes_its_seen_neighbours_median_colour_within_reach():
+    from nuav2.splat.ground import fill_unseen_ground
+
+    xs, ys = np.meshgrid(np.arange(40) * 0.25, np.arange(20) * 0.25)
+    xyz = np.column_stack([xs.ravel(), ys.ravel(), np.zeros(xs.size)])
+    rgb = np.full((len(xyz), 3), 0.3)
+    rgb[np.isclose(xyz[:, 1], 2.0)] = 0.95  # a lane line along the hole's edge
+    seen = xyz[:, 0] < 5.0
+    seen[np.isclose(xyz[:, 1], 2.0) & (xyz[:, 0] < 5.0)] = True
+    idx, colours = fill_unseen_ground(xyz, rgb, seen, reach_m=2.0, neighbours=16)
+    assert set(idx) <= set(np.flatnonzero(~seen)) and len(idx) > 0
+    gap = xyz[idx, 0] - 4.75  # distance beyond the last seen column
+    assert gap.max() <= 2.0 + 1e-9 and (xyz[~seen, 0] - 4.75).max() > 2.0  # the far part stays out
+    np.testing.assert_allclose(colours, 0.3)  # asphalt, not the lane line smeared across the hole
+    none, _ = fill_unseen_ground(xyz, rgb, seen, reach_m=0.0, neighbours=16)
+    assert len(none) == 0
+    all_seen, _ = fill_unseen_ground(xyz, rgb, np.ones(len(xyz), bool), reach_m=2.0, neighbours=16)
+    assert len(all_seen) == 0

@@ -47,6 +47,29 @@ def test_photometric_ignores_masked_pixels():
     assert float(same) < 1e-6 and l1 == 0.0 and abs(s - 1.0) < 1e-6
 
 
+def test_the_photo_behind_the_mask_stops_every_gradient_to_masked_pixels():
+    """The ego body's edge: masking the loss still leaves SSIM's gradient on masked pixels next to it (what
+    turned the road behind a waiting ego see-through); the photo behind the mask leaves none, in both the
+    reference loss and the fused one training uses."""
+    from nuav2.splat._photometric import fused_photometric_loss
+    from nuav2.splat.losses import photo_behind_mask
+
+    rng = np.random.default_rng(3)
+    target = torch.tensor(rng.uniform(size=(24, 24, 3)), dtype=torch.float32)
+    valid = torch.ones(24, 24, dtype=torch.bool)
+    valid[16:] = False  # the ego body along the bottom
+    for loss_fn in (photometric_loss, fused_photometric_loss):
+        pred = torch.tensor(rng.uniform(size=(24, 24, 3)), dtype=torch.float32, requires_grad=True)
+        loss_fn(pred, target, valid)[0].backward()
+        assert float(pred.grad[16:18].abs().max()) > 0  # the masked loss alone: SSIM reaches past the edge
+        pred.grad = None
+        loss, _, _ = loss_fn(photo_behind_mask(pred, target, valid), target, valid)
+        loss.backward()
+        assert float(pred.grad[16:].abs().max()) == 0.0 and float(pred.grad[:16].abs().max()) > 0
+        plain, _, _ = loss_fn(pred.detach(), target, valid)
+        assert abs(float(loss) - float(plain)) < 0.05  # valid pixels scored as before (but SSIM at the edge)
+
+
 def test_depth_loss_zero_when_matching_and_trims_outliers():
     h, w = 10, 12
     depth = torch.full((h, w), 5.0)

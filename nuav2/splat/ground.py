@@ -152,3 +152,28 @@ def occupied_cells(points_scene: F64, ground_z_fn, clear_height: float) -> F64:
         return np.zeros((0, 2))
     high = points_scene[:, 2] - ground_z_fn(points_scene[:, :2]) > clear_height
     return points_scene[high, :2]
+
+
+def fill_unseen_ground(xyz_scene: F64, rgb: np.ndarray, seen: np.ndarray, reach_m: float,
+                       neighbours: int) -> tuple[np.ndarray, np.ndarray]:
+    """Colours for ground seeds no source image saw: the per-channel median of the ``neighbours`` nearest
+    seen ground seeds, for unseen seeds within ``reach_m`` of one. Returns (indices of the filled seeds,
+    their (M, 3) colours).
+
+    A target camera looks where the source cameras never did (behind an ego that waits at a junction,
+    under its own body): without ground there, the render shows the sky's colour on the road. The
+    median keeps a lane line at the edge of the seen area from being smeared across the hole.
+    """
+    unseen = np.flatnonzero(~seen)
+    if reach_m <= 0 or not len(unseen) or not seen.any():
+        return np.zeros(0, np.int64), np.zeros((0, 3))
+    from scipy.spatial import cKDTree
+
+    seen_idx = np.flatnonzero(seen)
+    tree = cKDTree(xyz_scene[seen_idx, :2])
+    k = min(neighbours, len(seen_idx))
+    d, j = tree.query(xyz_scene[unseen, :2], k=k)
+    d, j = d.reshape(len(unseen), k), j.reshape(len(unseen), k)
+    near = d[:, 0] <= reach_m
+    colours = np.median(rgb[seen_idx[j[near]]], axis=1)
+    return unseen[near], colours

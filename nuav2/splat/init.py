@@ -34,7 +34,7 @@ from nuav2.splat.budget import (
     scene_budget,
 )
 from nuav2.splat.colouring import colour_seeds
-from nuav2.splat.ground import GroundSurface, ground_seeds, occupied_cells
+from nuav2.splat.ground import GroundSurface, fill_unseen_ground, ground_seeds, occupied_cells
 from nuav2.splat.harmonise import set_exposure, solve_view_exposure
 from nuav2.splat.lidar_seeds import (
     aggregate_lidar,
@@ -79,6 +79,11 @@ class InitConfig:
     zbuf_rel_tol: float = 0.05
     zbuf_abs_tol_m: float = 0.3
     keep_unseen: bool = False
+    # Ground no source image saw (behind a waiting ego, under its body) within this distance of seen ground
+    # is kept with its seen neighbours' median colour, opaque (training never reaches it); 0: dropped.
+    unseen_ground_reach_m: float = 12.0
+    unseen_ground_neighbours: int = 16
+    unseen_ground_opacity: float = 0.95
     sky_height: int = 32
     sky_width: int = 128
     sky_min_elevation_deg: float = 1.0
@@ -97,6 +102,13 @@ class InitConfig:
 
 
 # ---- the initial scene -----------------------------------------------------------------------------
+
+
+def _unseen_ground(xyz: F64, rgb: np.ndarray, seen: np.ndarray, cell: np.ndarray,
+                   cfg: InitConfig) -> GroundSeeds:
+    """The ground seeds no image saw that :func:`fill_unseen_ground` colours, as fine seeds."""
+    idx, colours = fill_unseen_ground(xyz, rgb, seen, cfg.unseen_ground_reach_m, cfg.unseen_ground_neighbours)
+    return GroundSeeds(xyz[idx], colours, cell[idx], np.ones(len(idx), np.int64))
 
 LIDAR, GROUND, FACADE = 0, 1, 2  # kinds of background seeds
 
@@ -123,6 +135,7 @@ def initial_scene(scene: SceneLog, views: list[SourceView], cfg: InitConfig, *, 
     import torch
 
     from nuav2.splat.scene_model import GaussianSet, ObjectModel, SkyModel, SplatScene, scene_frame_for
+    from nuav2.splat.sky import inverse_sigmoid
 
     rng = np.random.default_rng(seed)
     city_T_scene = scene_frame_for(scene.city_T_ego[0])
@@ -157,23 +170,30 @@ def initial_scene(scene: SceneLog, views: list[SourceView], cfg: InitConfig, *, 
 
     sky_masks = refine_sky_masks(views, bg_col.sky_masks, scene_T_city, cfg.sky_colour_tol, threads=threads)
 
-    keep = np.isfinite(bg_col.rgb).all(1) if not cfg.keep_unseen else np.ones(len(bg_pts), bool)
+    seen = np.isfinite(bg_col.rgb).all(1)
+    keep = seen if not cfg.keep_unseen else np.ones(len(bg_pts), bool)
     bg_rgb = np.where(np.isfinite(bg_col.rgb), bg_col.rgb, 0.5)
     is_ground = kind == GROUND
     # Plain ground merges into coarser discs; textured ground (paint) keeps its fine seeds.
     g = GroundSeeds(bg_pts[is_ground & keep], bg_rgb[is_ground & keep], ground_cell[keep[is_ground]],
                     np.ones(int((is_ground & keep).sum()), np.int64))
     n_fine = len(g)
+    g_fill = _unseen_ground(bg_pts[is_ground], bg_rgb[is_ground], seen[is_ground], ground_cell, cfg)
     if cfg.budget is not None:
         g = merge_plain_ground(g, cfg.budget.merge_levels, cfg.budget.merge_tol)
+        g_fill = merge_plain_ground(g_fill, cfg.budget.merge_levels, cfg.budget.merge_tol)
     rest = ~is_ground & keep
     facade, facade_rgb = (facade_seeds(views, bg_col.sky_masks, sky_masks, bg_lidar, scene_T_city, cfg)
                           if cfg.facade_view_stride > 0 else (np.zeros((0, 3)), np.zeros((0, 3))))
-    bg_pts = np.concatenate([g.xyz, bg_pts[rest], facade])
-    bg_rgb = np.concatenate([g.rgb, bg_rgb[rest], facade_rgb])
-    kind = np.concatenate([np.full(len(g), GROUND), kind[rest], np.full(len(facade), FACADE)])
-    spacing = np.concatenate([g.size * cfg.ground_spacing_m, np.zeros(int(rest.sum()) + len(facade))])
-    tier = np.where(kind == GROUND, np.where(spacing <= cfg.ground_spacing_m, TIER_PAINT, TIER_GROUND),
+    bg_pts = np.concatenate([g.xyz, g_fill.xyz, bg_pts[rest], facade])
+    bg_rgb = np.concatenate([g.rgb, g_fill.rgb, bg_rgb[rest], facade_rgb])
+    n_rest = int(rest.sum()) + len(facade)
+    kind = np.concatenate([np.full(len(g) + len(g_fill), GROUND), kind[rest], np.full(len(facade), FACADE)])
+    filled = np.concatenate([np.zeros(len(g), bool), np.ones(len(g_fill), bool), np.zeros(n_rest, bool)])
+    spacing = np.concatenate([g.size * cfg.ground_spacing_m, g_fill.size * cfg.ground_spacing_m,
+                              np.zeros(n_rest)])
+    tier = np.where(kind == GROUND, np.where((spacing <= cfg.ground_spacing_m) & ~filled, TIER_PAINT,
+                                             TIER_GROUND),
                     np.where(distance_bands(bg_pts[:, :2], path_xy, cfg.voxel_bands_m[:1]) == 0, TIER_NEAR,
                              TIER_FAR))
     if cfg.budget is None:  # the former rule: a uniform sample over all seeds
@@ -182,12 +202,16 @@ def initial_scene(scene: SceneLog, views: list[SourceView], cfg: InitConfig, *, 
     # dropping them first blanked the far side of a wide road (-5 dB on the arterial's left cameras).
     sel = keep_by_priority(np.minimum(tier, TIER_NEAR), cfg.max_background, rng)
     bg_pts, bg_rgb, kind, spacing, tier = bg_pts[sel], bg_rgb[sel], kind[sel], spacing[sel], tier[sel]
+    filled = filled[sel]
     is_ground = kind == GROUND
     scales = np.repeat(knn_scales(bg_pts, 3, cfg.min_scale_m, cfg.max_scale_m)[:, None], 3, axis=1)
     # Ground seeds are flat discs on a regular grid: they tile the road without gaps or bumps.
     scales[is_ground, 0] = scales[is_ground, 1] = 0.6 * spacing[is_ground]
     scales[is_ground, 2] = 0.02
     background = GaussianSet.create(bg_pts, bg_rgb, scales, opacity=cfg.opacity, sh_degree=sh_degree)
+    if filled.any():  # nothing trains them: they must cover the road as they are
+        opaque = float(inverse_sigmoid(cfg.unseen_ground_opacity))
+        background.opacity_logits[torch.from_numpy(filled)] = opaque
 
     objects = []
     for tid, pts in obj_pts.items():
@@ -220,6 +244,7 @@ def initial_scene(scene: SceneLog, views: list[SourceView], cfg: InitConfig, *, 
              "background_lidar_seeds": int((kind == LIDAR).sum()),
              "facade_seeds": int((kind == FACADE).sum()),
              "ground_seeds": int(is_ground.sum()), "ground_seeds_fine": n_fine,
+             "unseen_ground_seeds": int(filled.sum()),
              "seeds_by_tier": {name: int((tier == t).sum()) for t, name in enumerate(TIER_NAMES)},
              "gaussian_budget": budget,
              "background_gaussians": len(background),

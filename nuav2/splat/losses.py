@@ -52,6 +52,14 @@ def masked_target(pred: torch.Tensor, target: torch.Tensor, valid: torch.Tensor 
     return torch.where(valid[..., None], target, pred.detach())
 
 
+def photo_behind_mask(pred: torch.Tensor, target: torch.Tensor, valid: torch.Tensor) -> torch.Tensor:
+    """The render where ``valid``, the photo elsewhere (the ego's body): no gradient reaches what the render
+    puts behind the mask. Masking the loss alone is not enough: SSIM windows that straddle the mask edge
+    still pull on the masked pixels, and so on the road under and behind the ego, which no image sees;
+    it turned see-through and a target camera looking back showed the sky's colour on the road."""
+    return torch.where(valid[..., None], pred, target)
+
+
 def photometric_loss(pred: torch.Tensor, target: torch.Tensor, valid: torch.Tensor | None = None,
                      lambda_ssim: float = 0.2) -> tuple[torch.Tensor, float, float]:
     """(1 - lambda) L1 + lambda (1 - SSIM) over valid pixels; returns (loss, l1, ssim)."""

@@ -26,7 +26,7 @@ from nuav2.scene import SceneLog
 from nuav2.splat._photometric import fused_photometric_loss
 from nuav2.splat.densify import DensifyConfig, DensifyStrategy
 from nuav2.splat.device import to_cpu
-from nuav2.splat.losses import depth_loss, photometric_loss, psnr, sky_loss
+from nuav2.splat.losses import depth_loss, photo_behind_mask, photometric_loss, psnr, sky_loss
 from nuav2.splat.scene_model import GaussianSet, SplatScene, TrackPoses
 from nuav2.splat.train_views import ViewData, lidar_depth_by_view
 from nuav2.splat.views import SourceView
@@ -303,7 +303,7 @@ class Trainer:
             m2d.retain_grad()
         # the fused numba loss on the CPU (same value and gradient, a tenth of the time)
         photometric = fused_photometric_loss if out.rgb.device.type == "cpu" else photometric_loss
-        loss, _, _ = photometric(out.rgb, img, valid, cfg.lambda_ssim)
+        loss, _, _ = photometric(photo_behind_mask(out.rgb, img, valid), img, valid, cfg.lambda_ssim)
         if cfg.lambda_depth > 0 and len(uvz):
             loss = loss + cfg.lambda_depth * depth_loss(out.depth, out.alpha, uvz, cfg.depth_trim)
         if cfg.lambda_sky > 0:
