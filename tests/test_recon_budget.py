@@ -92,6 +92,9 @@ def test_seeding_a_log_gives_a_scene_budget_and_coarse_plain_ground(tmp_path):
     assert 0 < st["unseen_ground_seeds"] < st["ground_seeds"]
     dropped = initial_scene(scene, views, replace(cfg, unseen_ground_reach_m=0.0), sh_degree=0).stats
     assert dropped["unseen_ground_seeds"] == 0 and dropped["ground_seeds"] < st["ground_seeds"]
+    # keep_unseen keeps every seed as it is (grey where unseen): nothing left to fill, nothing twice
+    as_is = initial_scene(scene, views, replace(cfg, keep_unseen=True), sh_degree=0).stats
+    assert as_is["unseen_ground_seeds"] == 0 and as_is["ground_seeds"] < st["ground_seeds"] + 200
     # Over the cap: ground stays whole, structure near and far from the path is thinned alike (far seeds
     # are already sparse; dropping them first blanked the far side of a wide road).
     tiers = st["seeds_by_tier"]

@@ -103,13 +103,6 @@ class InitConfig:
 
 # ---- the initial scene -----------------------------------------------------------------------------
 
-
-def _unseen_ground(xyz: F64, rgb: np.ndarray, seen: np.ndarray, cell: np.ndarray,
-                   cfg: InitConfig) -> GroundSeeds:
-    """The ground seeds no image saw that :func:`fill_unseen_ground` colours, as fine seeds."""
-    idx, colours = fill_unseen_ground(xyz, rgb, seen, cfg.unseen_ground_reach_m, cfg.unseen_ground_neighbours)
-    return GroundSeeds(xyz[idx], colours, cell[idx], np.ones(len(idx), np.int64))
-
 LIDAR, GROUND, FACADE = 0, 1, 2  # kinds of background seeds
 
 
@@ -122,6 +115,14 @@ class InitResult:
     stats: dict
     exposure: ExposureModel | None = None
     budget: int | None = None  # densification budget for this scene (None: the training config's)
+
+
+def _unseen_ground(xyz: F64, rgb: np.ndarray, kept: np.ndarray, cell: np.ndarray,
+                   cfg: InitConfig) -> GroundSeeds:
+    """The ground seeds not kept (no image saw them) that :func:`fill_unseen_ground` colours from the kept
+    ones, as fine seeds."""
+    idx, colours = fill_unseen_ground(xyz, rgb, kept, cfg.unseen_ground_reach_m, cfg.unseen_ground_neighbours)
+    return GroundSeeds(xyz[idx], colours, cell[idx], np.ones(len(idx), np.int64))
 
 
 def initial_scene(scene: SceneLog, views: list[SourceView], cfg: InitConfig, *, sh_degree: int = 1,
@@ -170,15 +171,14 @@ def initial_scene(scene: SceneLog, views: list[SourceView], cfg: InitConfig, *, 
 
     sky_masks = refine_sky_masks(views, bg_col.sky_masks, scene_T_city, cfg.sky_colour_tol, threads=threads)
 
-    seen = np.isfinite(bg_col.rgb).all(1)
-    keep = seen if not cfg.keep_unseen else np.ones(len(bg_pts), bool)
+    keep = np.isfinite(bg_col.rgb).all(1) if not cfg.keep_unseen else np.ones(len(bg_pts), bool)
     bg_rgb = np.where(np.isfinite(bg_col.rgb), bg_col.rgb, 0.5)
     is_ground = kind == GROUND
     # Plain ground merges into coarser discs; textured ground (paint) keeps its fine seeds.
     g = GroundSeeds(bg_pts[is_ground & keep], bg_rgb[is_ground & keep], ground_cell[keep[is_ground]],
                     np.ones(int((is_ground & keep).sum()), np.int64))
     n_fine = len(g)
-    g_fill = _unseen_ground(bg_pts[is_ground], bg_rgb[is_ground], seen[is_ground], ground_cell, cfg)
+    g_fill = _unseen_ground(bg_pts[is_ground], bg_rgb[is_ground], keep[is_ground], ground_cell, cfg)
     if cfg.budget is not None:
         g = merge_plain_ground(g, cfg.budget.merge_levels, cfg.budget.merge_tol)
         g_fill = merge_plain_ground(g_fill, cfg.budget.merge_levels, cfg.budget.merge_tol)
