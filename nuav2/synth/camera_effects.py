@@ -66,7 +66,7 @@ class CameraEffects:
     def apply(self, cam: CameraSpec, img: np.ndarray, t_s: float, timestamp_ns: int) -> np.ndarray:
         """The camera's image of the clean render ``img`` (uint8 RGB) at ``t_s`` seconds into the log."""
         p = self.params[cam.channel]
-        linear = (img.astype(np.float32) / 255.0) ** GAMMA
+        linear = to_linear(img)
         valid = ~cam.ego_mask() if cam.ego_mask_polygons else np.ones(img.shape[:2], bool)
         gain = self.gain_for(cam.channel, linear, valid, t_s)
         self.applied[cam.channel].append((int(timestamp_ns), gain))
@@ -80,8 +80,7 @@ class CameraEffects:
                 np.float32
             )  # cos^4 falloff
             self._vignette[cam.channel] = vig
-        out = linear * (gain * vig)[..., None] * p["wb"][None, None, :].astype(np.float32)
-        out = 255.0 * np.clip(out, 0.0, 1.0) ** (1.0 / GAMMA)
+        out = to_display(linear * (gain * vig)[..., None] * p["wb"][None, None, :].astype(np.float32))
         if not self.noise:
             return np.clip(np.rint(out), 0, 255).astype(np.uint8)
         rng = np.random.default_rng(
@@ -116,9 +115,18 @@ def reference_gain(cameras: dict) -> np.ndarray:
 def expose(img: np.ndarray, gain_rgb: np.ndarray) -> np.ndarray:
     """The uint8 RGB image ``img`` at ``gain_rgb`` times its exposure (in linear light, clipped as a sensor
     clips), as float32 8-bit values: the truth as a camera at that fixed exposure would see it."""
-    linear = (img.astype(np.float32) / 255.0) ** GAMMA
-    out = np.clip(linear * np.asarray(gain_rgb, np.float32)[None, None, :], 0.0, 1.0)
-    return (255.0 * out ** (1.0 / GAMMA)).astype(np.float32)
+    return to_display(to_linear(img) * np.asarray(gain_rgb, np.float32)[None, None, :]).astype(np.float32)
+
+
+def to_linear(img: np.ndarray) -> np.ndarray:
+    """uint8 RGB -> float32 linear light in [0, 1] (the cameras' gamma 2.2)."""
+    return (img.astype(np.float32) / 255.0) ** GAMMA
+
+
+def to_display(linear: np.ndarray) -> np.ndarray:
+    """Linear light -> 8-bit values (float, unrounded), clipped as a sensor clips: the inverse of
+    :func:`to_linear` that :meth:`CameraEffects.apply` and :func:`expose` share."""
+    return 255.0 * np.clip(linear, 0.0, 1.0) ** (1.0 / GAMMA)
 
 
 def log_reference_gain(log_dir: str | Path) -> np.ndarray | None:
