@@ -311,3 +311,24 @@ def test_depth_targets_read_each_sweep_once_and_match_one_view_at_a_time(tmp_pat
     for v, uvz in zip(views, got, strict=True):
         np.testing.assert_array_equal(uvz, lidar_depth_samples(scene, v, scene_T_city))
     assert sum(len(u) > 100 for u in got) >= len(views) // 2
+
+
+@pytest.mark.parametrize("road", [None, (0.3, 0.25, 0.2)])
+def test_sky_texture_below_the_horizon_is_road_not_the_horizon_sky(road):
+    """Bins below the horizon that no sky pixel reached take the road's colour when it is given (the
+    sky shows through wherever the road is partly transparent); without it, the nearest row's sky."""
+    from nuav2.splat.sky_init import sky_row_elevations, sky_texture_from_views
+
+    h, w = 21, 31
+    img = np.zeros((h, w, 3), np.float32)
+    img[: h // 2] = [0.5, 0.7, 0.9]  # sky above the horizon row
+    img[h // 2 :] = [0.3, 0.25, 0.2]
+    view = _view(img, make_T(CAM_R_FORWARD_X, [0, 0, 0]))
+    sky = np.zeros((h, w), bool)
+    sky[: h // 2] = True
+    tex = sky_texture_from_views([view], {0: sky}, np.eye(4), 32, 64, below_horizon_rgb=road)
+    below = sky_row_elevations(32) < 0
+    assert below.sum() == 6 and not below[:26].any()  # rows 26..31: -3.5 to -20 degrees
+    np.testing.assert_allclose(tex[~below], np.broadcast_to([0.5, 0.7, 0.9], tex[~below].shape), atol=1e-6)
+    want = [0.5, 0.7, 0.9] if road is None else road
+    np.testing.assert_allclose(tex[below], np.broadcast_to(want, tex[below].shape), atol=1e-6)

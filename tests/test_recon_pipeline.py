@@ -63,6 +63,11 @@ def trained(tiny_scene) -> SplatScene:
 
 
 @pytest.fixture(scope="module")
+def trained_longer(tiny_scene) -> SplatScene:
+    return reconstruct(tiny_scene, tiny_config(iterations=400), progress=False)
+
+
+@pytest.fixture(scope="module")
 def seeded(tiny_scene) -> SplatScene:
     return reconstruct(tiny_scene, tiny_config(iterations=0), progress=False)
 
@@ -85,12 +90,15 @@ def test_heldout_source_views(trained, tiny_scene):
     assert held["psnr_db"] >= 20.5  # measured 22.3 dB
 
 
-def test_lane_paint_lines_up_with_map(trained, tiny_scene, tiny_world):
+def test_lane_paint_lines_up_with_map(trained_longer, tiny_scene, tiny_world):
     """Projected solid map paint lands on rendered paint: median offset close to ground truth's.
 
     At the source images' own scale (1/16 of nuScenes) paint is ~1 px wide, so ground truth itself
-    scores ~1.1 px (the detector's floor); measured at writing: render 0.8 px, 1390 of 1783 points."""
-    scores = target_rig_scores(trained, tiny_scene, tiny_world, scale=TARGET_SCALE, n_times=3)
+    scores ~1.1 px (the detector's floor). After 200 iterations the road is still partly see-through
+    here and the score depends on what shows through it (0.8 px while the sky's pale horizon did, 2.0
+    px since the sky below the horizon holds the road's colour); after 400 it measures the paint:
+    1.39 px, 1390 of 1783 points (1.25 px with the pale horizon behind the road)."""
+    scores = target_rig_scores(trained_longer, tiny_scene, tiny_world, scale=TARGET_SCALE, n_times=3)
     paint = scores["paint"]
     assert paint["points_truth"] > 500 and paint["points_render"] > 0.6 * paint["points_truth"]
     assert paint["median_px_render"] <= paint["median_px_truth"] + 0.5

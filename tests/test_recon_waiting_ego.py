@@ -59,10 +59,14 @@ def _back_ground_error(splat, scene, world) -> float:
 
 
 def test_the_road_behind_a_waiting_ego_is_road(waiting):
+    """Two things keep the sky off that road: the unseen ground is filled with seeds, and the sky's rows
+    below the horizon hold the road's colour where the road is still partly transparent. Either alone
+    keeps the error far below the 28.9 measured when the sky's colour showed there."""
     scene, world = waiting
     splat = reconstruct(scene, _config(), progress=False)
     assert splat.info["init_stats"]["unseen_ground_seeds"] > 0
     error = _back_ground_error(splat, scene, world)
     dropped = reconstruct(scene, _config(unseen_ground_reach_m=0.0), progress=False)
-    before = _back_ground_error(dropped, scene, world)
-    assert error < 12.0 and error < 0.5 * before  # measured at writing: 9.6 against 28.9 (sky on the road)
+    assert dropped.info["init_stats"]["unseen_ground_seeds"] == 0
+    below = _back_ground_error(dropped, scene, world)  # only the road-coloured sky below the horizon
+    assert error < 12.0 and below < 12.0  # measured at writing: 8.0 and 8.3

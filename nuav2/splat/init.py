@@ -227,8 +227,9 @@ def initial_scene(scene: SceneLog, views: list[SourceView], cfg: InitConfig, *, 
                                                                    sh_degree=sh_degree)))
 
     sky = SkyModel(cfg.sky_height, cfg.sky_width)
+    road_rgb = np.median(g.rgb, axis=0) if len(g) else None  # seen ground: what lies below the horizon
     tex = sky_texture_from_views(views, sky_masks, scene_T_city, cfg.sky_height, cfg.sky_width,
-                                 threads=threads)
+                                 threads=threads, below_horizon_rgb=road_rgb)
     if tex is not None:
         with torch.no_grad():
             p = torch.from_numpy(np.clip(tex, 0.02, 0.98)).float().permute(2, 0, 1)

@@ -11,7 +11,7 @@ import numpy as np
 
 from nuav2.cells import unique_cells
 from nuav2.geometry import F64, T_inverse
-from nuav2.splat.sky import camera_rays
+from nuav2.splat.sky import SKY_ELEV_MIN, camera_rays
 from nuav2.splat.views import Projection, SourceView, project
 from nuav2.threads import ordered_thread_map
 
@@ -146,10 +146,22 @@ def facade_seeds(views: list[SourceView], candidates: dict[int, np.ndarray], sky
     return pts[first], rgb[first]
 
 
+def sky_row_elevations(height: int) -> np.ndarray:
+    """Elevation (radians) of each row centre of a ``height``-row sky texture (row 0: the zenith)."""
+    return np.pi / 2 - np.arange(height) / max(height - 1, 1) * (np.pi / 2 - SKY_ELEV_MIN)
+
+
 def sky_texture_from_views(views: list[SourceView], sky_masks: dict[int, np.ndarray], scene_T_city: F64,
-                           height: int, width: int, threads: int = 1) -> np.ndarray | None:
+                           height: int, width: int, threads: int = 1,
+                           below_horizon_rgb: np.ndarray | None = None) -> np.ndarray | None:
     """(H, W, 3) mean sky colour per lat-long bin from the sky pixels, holes filled by row means
-    (then the overall mean); None if no view has a sky pixel. ``threads``: views binned in parallel."""
+    (then the nearest row, then the overall mean); None if no view has a sky pixel. ``threads``: views
+    binned in parallel.
+
+    ``below_horizon_rgb`` (the road's colour): fills the bins below the horizon that no sky pixel
+    reached. The sky is drawn behind every pixel the Gaussians leave partly transparent, and below
+    the horizon that is road: filled with the horizon's sky colour instead, a see-through patch of
+    road behind the ego showed pale blue in a target camera looking back."""
     import torch
 
     from nuav2.splat.scene_model import SkyModel, pixel_rays
@@ -183,6 +195,9 @@ def sky_texture_from_views(views: list[SourceView], sky_masks: dict[int, np.ndar
         return None
     overall = acc.sum(0) / cnt.sum()
     tex = np.where(cnt[:, None] > 0, acc / np.maximum(cnt, 1)[:, None], np.nan).reshape(height, width, 3)
+    if below_horizon_rgb is not None:
+        below = sky_row_elevations(height) < 0
+        tex[below] = np.where(np.isfinite(tex[below]), tex[below], np.asarray(below_horizon_rgb, np.float64))
     for r in range(height):
         row = tex[r]
         ok = np.all(np.isfinite(row), axis=1)
