@@ -332,3 +332,28 @@ def test_sky_texture_below_the_horizon_is_road_not_the_horizon_sky(road):
     np.testing.assert_allclose(tex[~below], np.broadcast_to([0.5, 0.7, 0.9], tex[~below].shape), atol=1e-6)
     want = [0.5, 0.7, 0.9] if road is None else road
     np.testing.assert_allclose(tex[below], np.broadcast_to(want, tex[below].shape), atol=1e-6)
+
+
+def test_sky_rows_missing_near_the_horizon_take_sky_not_road():
+    """Buildings hide the sky's lowest rows (an urban canyon): those rows, above the horizon, copy the
+    nearest sky row, never the road below the horizon; with no sky pixel at all, the sky keeps the
+    model's default colour above the horizon and the road's below."""
+    from nuav2.splat.sky import SKY_INIT_RGB
+    from nuav2.splat.sky_init import sky_row_elevations, sky_texture_from_views
+
+    h, w = 21, 31
+    img = np.full((h, w, 3), 0.3, np.float32)
+    img[:4] = [0.5, 0.7, 0.9]  # sky only above ~ +20 deg: the rows down to the horizon are facades
+    view = _view(img, make_T(CAM_R_FORWARD_X, [0, 0, 0]))
+    sky = np.zeros((h, w), bool)
+    sky[:4] = True
+    road = (0.3, 0.25, 0.2)
+    above = sky_row_elevations(32) >= 0
+    tex = sky_texture_from_views([view], {0: sky}, np.eye(4), 32, 64, below_horizon_rgb=road)
+    np.testing.assert_allclose(tex[above], np.broadcast_to([0.5, 0.7, 0.9], tex[above].shape), atol=1e-6)
+    np.testing.assert_allclose(tex[~above], np.broadcast_to(road, tex[~above].shape), atol=1e-6)
+    no_sky = sky_texture_from_views([view], {0: np.zeros((h, w), bool)}, np.eye(4), 32, 64,
+                                    below_horizon_rgb=road)
+    np.testing.assert_allclose(no_sky[above], np.broadcast_to(SKY_INIT_RGB, no_sky[above].shape), atol=1e-6)
+    np.testing.assert_allclose(no_sky[~above], np.broadcast_to(road, no_sky[~above].shape), atol=1e-6)
+    assert sky_texture_from_views([view], {0: np.zeros((h, w), bool)}, np.eye(4), 32, 64) is None

@@ -18,6 +18,7 @@ from nuav2.geometry import F64
 from nuav2.rig import CameraSpec
 
 SKY_ELEV_MIN = -math.radians(20.0)  # the sky texture spans this elevation up to the zenith
+SKY_INIT_RGB = (0.7, 0.8, 0.9)  # a new sky's colour everywhere, before the views are seen
 
 
 def inverse_sigmoid(p: torch.Tensor | float) -> torch.Tensor:
@@ -36,7 +37,7 @@ class SkyModel(torch.nn.Module):
     """
 
     def __init__(self, height: int = 32, width: int = 128,
-                 init_rgb: tuple[float, float, float] = (0.7, 0.8, 0.9)):
+                 init_rgb: tuple[float, float, float] = SKY_INIT_RGB):
         super().__init__()
         logits = inverse_sigmoid(torch.tensor(init_rgb, dtype=torch.float32))
         self.texture = torch.nn.Parameter(logits[:, None, None].expand(3, height, width).clone())

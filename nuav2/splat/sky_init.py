@@ -11,7 +11,7 @@ import numpy as np
 
 from nuav2.cells import unique_cells
 from nuav2.geometry import F64, T_inverse
-from nuav2.splat.sky import SKY_ELEV_MIN, camera_rays
+from nuav2.splat.sky import SKY_ELEV_MIN, SKY_INIT_RGB, camera_rays
 from nuav2.splat.views import Projection, SourceView, project
 from nuav2.threads import ordered_thread_map
 
@@ -155,7 +155,9 @@ def sky_texture_from_views(views: list[SourceView], sky_masks: dict[int, np.ndar
                            height: int, width: int, threads: int = 1,
                            below_horizon_rgb: np.ndarray | None = None) -> np.ndarray | None:
     """(H, W, 3) mean sky colour per lat-long bin from the sky pixels, holes filled by row means
-    (then the nearest row, then the overall mean); None if no view has a sky pixel. ``threads``: views
+    (then the nearest row on the same side of the horizon, then the overall mean, or the sky model's
+    default colour where no view has a sky pixel); None if no view has a sky pixel and no
+    ``below_horizon_rgb`` is given. ``threads``: views
     binned in parallel.
 
     ``below_horizon_rgb`` (the road's colour): fills the bins below the horizon that no sky pixel
@@ -191,13 +193,15 @@ def sky_texture_from_views(views: list[SourceView], sky_masks: dict[int, np.ndar
         for c in range(3):
             acc[:, c] += np.bincount(bins, weights=pix[:, c], minlength=n_bins)
         cnt += np.bincount(bins, minlength=n_bins)
-    if cnt.sum() == 0:
+    if cnt.sum() == 0 and below_horizon_rgb is None:
         return None
-    overall = acc.sum(0) / cnt.sum()
+    overall = acc.sum(0) / cnt.sum() if cnt.sum() else np.asarray(SKY_INIT_RGB, np.float64)
     tex = np.where(cnt[:, None] > 0, acc / np.maximum(cnt, 1)[:, None], np.nan).reshape(height, width, 3)
+    # Rows take a missing row's colour from their own side of the horizon: sky from sky, road from road.
+    side = np.zeros(height, bool)
     if below_horizon_rgb is not None:
-        below = sky_row_elevations(height) < 0
-        tex[below] = np.where(np.isfinite(tex[below]), tex[below], np.asarray(below_horizon_rgb, np.float64))
+        side = sky_row_elevations(height) < 0
+        tex[side] = np.where(np.isfinite(tex[side]), tex[side], np.asarray(below_horizon_rgb, np.float64))
     for r in range(height):
         row = tex[r]
         ok = np.all(np.isfinite(row), axis=1)
@@ -205,9 +209,6 @@ def sky_texture_from_views(views: list[SourceView], sky_masks: dict[int, np.ndar
     rows_ok = np.all(np.isfinite(tex[:, 0]), axis=1)
     for r in range(height):
         if not rows_ok[r]:
-            if rows_ok.any():
-                nearest = np.flatnonzero(rows_ok)[np.argmin(np.abs(np.flatnonzero(rows_ok) - r))]
-                tex[r] = tex[nearest]
-            else:
-                tex[r] = overall
+            donors = np.flatnonzero(rows_ok & (side == side[r]))
+            tex[r] = tex[donors[np.argmin(np.abs(donors - r))]] if len(donors) else overall
     return tex
