@@ -25,7 +25,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from converters.av2 import read_log
-from nuav2.bench.recon import target_rig_scores
+from nuav2.bench.recon import DEFAULT_TARGET_SCALE, target_rig_scores
 from nuav2.recon import ReconConfig, default_channels, reconstruct
 from nuav2.splat.views import source_views
 from nuav2.synth import load_world
@@ -59,9 +59,14 @@ def main() -> None:
     ap.add_argument("--half-res-iterations", type=int, default=None,
                     help="half-resolution iterations (default: the preset's fraction of the cap)")
     ap.add_argument("--device", default="cpu", help="cpu (default), cuda or auto (see nuav2.recon)")
+    ap.add_argument("--patience", type=int, default=None,
+                    help="the early-stop rule's patience (0: never stop early; default: the preset's)")
+    ap.add_argument("--scale", type=float, default=DEFAULT_TARGET_SCALE, help="nuScenes rig scale scored")
     args = ap.parse_args()
     scene, world = read_log(args.log_dir), load_world(args.log_dir)
     cfg = replace(ReconConfig.preset(args.preset), device=args.device)
+    if args.patience is not None:
+        cfg = replace(cfg, train=replace(cfg.train, patience=args.patience))
     if args.half_res_iterations is not None:  # the coarse stage as a count, not a fraction of the cap
         views = source_views(scene, cfg.scale_for(scene), channels=default_channels(scene))
         n_train = len(views) // cfg.frame_stride
@@ -72,11 +77,11 @@ def main() -> None:
     splat = reconstruct(scene, cfg, progress=False)
     wall, cpu = time.perf_counter() - wall0, cpu_s() - cpu0
     train = splat.info["train"]
-    target = target_rig_scores(splat, scene, world, n_times=args.times)
+    target = target_rig_scores(splat, scene, world, scale=args.scale, n_times=args.times)
     regions = target["regions"]["psnr_db"]
     print(json.dumps({
         "log": scene.log_id, "preset": args.preset, "device": splat.info["device"],
-        "half_res_iterations": args.half_res_iterations,
+        "half_res_iterations": args.half_res_iterations, "patience": cfg.train.patience,
         "iterations_cap": train.get("iterations"), "steps": train["steps"],
         "stop_reason": train["stop_reason"], "densify_stopped_at": train["densify_stopped_at"],
         "last_heldout_psnr_db": train["validation"][-1][1] if train["validation"] else None,
