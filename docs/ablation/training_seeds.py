@@ -32,24 +32,25 @@ from nuav2.synth.camera_effects import log_reference_gain
 REGIONS = ("whole", "ground", "objects", "sky", "nonrigid")
 
 
+OPTIONS = ConvertOptions(mode="render", rig="nuscenes", scale=0.125, recon_preset="fast", show_progress=False)
+
+
 def convert_with_seed(log_dir: Path, out: Path, recon_seed: int) -> None:
     """Render-mode conversion of one log, the `fast` reconstruction trained with seed ``recon_seed``."""
     fast = recon.ReconConfig.fast
     recon.ReconConfig.fast = staticmethod(lambda: replace(fast(), seed=recon_seed))
     try:
         shutil.rmtree(out, ignore_errors=True)
-        report = convert_av2(log_dir, out, ConvertOptions(mode="render", rig="nuscenes", scale=0.125,
-                                                           recon_preset="fast", show_progress=False))
+        report = convert_av2(log_dir, out, OPTIONS)
         if report.failed:
             raise SystemExit(f"{log_dir}: conversion failed: {report.failed}")
     finally:
         recon.ReconConfig.fast = fast
 
 
-def score(log_dir: Path, dataroot: Path) -> dict:
-    images = key_camera_images(dataroot, "v1.0-nuav2", log_offsets(dataroot, "v1.0-nuav2"))
-    s = score_against_world(images, load_world(log_dir), vector_map=read_log(log_dir).vector_map,
-                            reference_gain=log_reference_gain(log_dir)).summary()
+def score(dataroot: Path, world, vector_map, reference_gain) -> dict:
+    images = key_camera_images(dataroot, OPTIONS.version, log_offsets(dataroot, OPTIONS.version))
+    s = score_against_world(images, world, vector_map=vector_map, reference_gain=reference_gain).summary()
     return {r: s["psnr_db"][r] for r in REGIONS if s["psnr_db"].get(r) is not None}
 
 
@@ -75,12 +76,15 @@ def main() -> None:
             if not (logs / "train").is_dir():
                 generate_log(logs, seed=seed, config=configs[row])
             log_dir = next((logs / "train").iterdir())
+            truth = None  # the log's world, map and exposure: read once, and only if a run needs scoring
             for rs in recon_seeds:
                 out = a.work_dir / "render" / f"{row}_{seed}_{rs}"
                 done = a.work_dir / "render" / f"{row}_{seed}_{rs}.json"  # a finished run is reused
                 if not done.is_file():
                     convert_with_seed(log_dir, out, rs)
-                    done.write_text(json.dumps(score(log_dir, out)))
+                    truth = truth or (load_world(log_dir), read_log(log_dir).vector_map,
+                                      log_reference_gain(log_dir))
+                    done.write_text(json.dumps(score(out, *truth)))
                 psnr = json.loads(done.read_text())
                 runs.append({"row": row, "seed": seed, "recon_seed": rs, "psnr_db": psnr})
                 print(json.dumps(runs[-1]), flush=True)

@@ -157,8 +157,7 @@ def sky_texture_from_views(views: list[SourceView], sky_masks: dict[int, np.ndar
     """(H, W, 3) mean sky colour per lat-long bin from the sky pixels, holes filled by row means
     (then the nearest row on the same side of the horizon, then the overall mean, or the sky model's
     default colour where no view has a sky pixel); None if no view has a sky pixel and no
-    ``below_horizon_rgb`` is given. ``threads``: views
-    binned in parallel.
+    ``below_horizon_rgb`` is given. ``threads``: views binned in parallel.
 
     ``below_horizon_rgb`` (the road's colour): fills the bins below the horizon that no sky pixel
     reached. The sky is drawn behind every pixel the Gaussians leave partly transparent, and below
