@@ -99,15 +99,16 @@ def render_whole_log_s(splat: SplatScene, scene: SceneLog, *, rig: str = DEFAULT
     return sw
 
 
-def heldout_psnr(splat: SplatScene, scene: SceneLog) -> dict | None:
-    """Mean PSNR/SSIM on the held-out source images recorded in ``splat.info`` (ego body masked)."""
+def heldout_psnr(splat: SplatScene, scene: SceneLog, views: str = "heldout_views") -> dict | None:
+    """Mean PSNR on the held-out source images recorded in ``splat.info[views]`` (ego body masked);
+    ``views="validation_views"``: the images the early-stop rule measured."""
     import torch
 
     from nuav2.evaluate.image_metrics import psnr
     from nuav2.recon import views_from_records
     from nuav2.splat.init import load_image
 
-    records = splat.info.get("heldout_views") or []
+    records = splat.info.get(views) or []
     if not records:
         return None
     masks = {c.channel: c for c in scene.rig.cameras}
