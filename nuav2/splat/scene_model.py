@@ -30,6 +30,7 @@ import torch
 from nuav2.atomic import atomic_write_bytes
 from nuav2.geometry import F64, PoseTable, T_inverse, translation_T
 from nuav2.rig import CameraSpec
+from nuav2.splat.footprint import focal_px, widen_to_training_footprint
 from nuav2.splat.sky import SkyModel, inverse_sigmoid, pixel_rays
 from nuav2.splat.visible import gather_all, gather_visible
 
@@ -295,6 +296,9 @@ class SplatScene:
     radius_clip: float = 0.0
     info: dict = field(default_factory=dict)
     backend: str = "auto"  # the rasterizer's backend (nuav2.splat.rasterize); not saved with the scene
+    # Above the training resolution, widen Gaussians to their trained footprint (nuav2.splat.footprint);
+    # False renders them as trained, eroded at finer pixels. Not saved with the scene.
+    keep_training_footprint: bool = True
 
     @property
     def scene_T_city(self) -> F64:
@@ -319,6 +323,13 @@ class SplatScene:
                 o.track.pose_delta = o.track.pose_delta.detach().to(device)
         self.sky = self.sky.to(device)
         return self
+
+    @property
+    def train_focal_px(self) -> float | None:
+        """The finest pixel the scene was trained at: the largest focal length (pixels) of the training images
+        recorded in ``info["source_views"]`` (None while training, or for a scene without the record)."""
+        records = self.info.get("source_views") or []
+        return max((focal_px(r["K"]) for r in records), default=None)
 
     def num_gaussians(self) -> int:
         return len(self.background) + sum(len(o.gaussians) for o in self.objects)
@@ -348,7 +359,11 @@ class SplatScene:
                 colors, raster_deg = (SH_C0 * sh[:, 0] + 0.5).clamp_min(0.0), None
             else:
                 colors, raster_deg = sh, deg
-            out = rasterize(g["means"], g["quats"], g["log_scales"], g["opacity_logits"], colors, scene_T_cam,
+            log_scales = g["log_scales"]
+            if self.keep_training_footprint:
+                log_scales = widen_to_training_footprint(log_scales, g["means"], scene_T_cam, focal_px(cam.K),
+                                                         self.train_focal_px)
+            out = rasterize(g["means"], g["quats"], log_scales, g["opacity_logits"], colors, scene_T_cam,
                             raster_K(cam.K), cam.width, cam.height, near=self.near, far=self.far,
                             sh_degree=raster_deg, radius_clip=self.radius_clip, backend=self.backend)
             out_rgb, alpha, out_depth, meta = out.rgb, out.alpha, out.depth, out.meta
