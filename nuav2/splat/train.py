@@ -373,6 +373,10 @@ class Trainer:
         self.validation.append([self.step, v])
         if v > self.best_val + cfg.min_delta_db:  # (the best moves only on a real gain, as Keras does)
             self.best_val, self.bad_evals = v, 0
+        elif pyramid_level(cfg, self.step) < cfg.pyramid[-1]:
+            # Measured at the final resolution, the coarse stage gains slowly: no plateau until training
+            # is at that resolution (a 15 s log's `default` run stopped 600 steps after its coarse stage).
+            self.bad_evals = 0
         else:
             self.bad_evals += 1
         if cfg.patience > 0 and self.bad_evals >= cfg.patience and self.step >= cfg.min_iterations:
