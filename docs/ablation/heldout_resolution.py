@@ -14,32 +14,15 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import time
 from dataclasses import replace
 from pathlib import Path
-
-import numpy as np
-import torch
 
 import nuav2.splat.train as train_module
 from converters.av2 import read_log
 from nuav2.bench.recon import target_rig_scores
 from nuav2.recon import ReconConfig, reconstruct
-from nuav2.splat.losses import psnr
 from nuav2.synth import load_world
-
-
-def heldout_at(trainer, level: float) -> float:
-    """Mean PSNR of the trainer's validation images at ``level`` x the training resolution."""
-    vals = []
-    with torch.no_grad():
-        for d in trainer.val_data:
-            cam, img, valid, _, _ = d.at(level)
-            v = d.view
-            out = trainer.splat.render(cam, v.city_T_cam, v.timestamp_ns, sh_degree=trainer._active_sh())
-            vals.append(psnr(out.rgb, img, valid))
-    return float(np.mean([v for v in vals if math.isfinite(v)]))
 
 
 def main() -> None:
@@ -58,8 +41,8 @@ def main() -> None:
         check(trainer)
         if trainer.step % trainer.cfg.eval_every:
             return
-        row = {"step": trainer.step, "mean0.5": heldout_at(trainer, 0.5),
-               "mean1.0": heldout_at(trainer, trainer.cfg.pyramid[-1])}
+        row = {"step": trainer.step, "mean0.5": trainer.validate(0.5),
+               "mean1.0": trainer.validate(trainer.cfg.pyramid[-1])}
         if trainer.step % args.target_every == 0:
             s = target_rig_scores(trainer.splat, scene, world, scale=0.16, n_times=12, paint=False)
             row["target"], row["target_ground"] = s["psnr_db"], s["regions"]["psnr_db"]["ground"]

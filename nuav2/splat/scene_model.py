@@ -299,6 +299,7 @@ class SplatScene:
     # Above the training resolution, widen Gaussians to their trained footprint (nuav2.splat.footprint);
     # False renders them as trained, eroded at finer pixels. Not saved with the scene.
     keep_training_footprint: bool = True
+    _train_focal: tuple = field(default=(None, None), init=False, repr=False, compare=False)  # (records, f)
 
     @property
     def scene_T_city(self) -> F64:
@@ -329,7 +330,9 @@ class SplatScene:
         """The finest pixel the scene was trained at: the largest focal length (pixels) of the training images
         recorded in ``info["source_views"]`` (None while training, or for a scene without the record)."""
         records = self.info.get("source_views") or []
-        return max((focal_px(r["K"]) for r in records), default=None)
+        if self._train_focal[0] is not records:  # once per record list, not per render (1.4 ms on 15 s)
+            self._train_focal = (records, max((focal_px(r["K"]) for r in records), default=None))
+        return self._train_focal[1]
 
     def num_gaussians(self) -> int:
         return len(self.background) + sum(len(o.gaussians) for o in self.objects)

@@ -350,11 +350,13 @@ class Trainer:
             self.strategy.accumulate(key, grad_px[lo:hi], visible[lo:hi], width, height,
                                      rows=index[lo:hi] - sl.start, n=sl.stop - sl.start)
 
-    def validate(self) -> float | None:
-        """Mean PSNR of the validation views at ``eval_level`` x the training resolution (None: no views)."""
+    def validate(self, level: float | None = None) -> float | None:
+        """Mean PSNR of the validation views at ``level`` x the training resolution (default: ``eval_level``,
+        else the pyramid's last level; None: no views)."""
         if not self.val_data:
             return None
-        level = self.cfg.eval_level if self.cfg.eval_level is not None else self.cfg.pyramid[-1]
+        if level is None:
+            level = self.cfg.eval_level if self.cfg.eval_level is not None else self.cfg.pyramid[-1]
         vals = []
         with torch.no_grad():
             for d in self.val_data:
