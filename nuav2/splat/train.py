@@ -293,7 +293,9 @@ class Trainer:
         return total
 
     # ---- one iteration ----
-    def train_step(self) -> tuple[float, float]:
+    def train_step(self, measure_psnr: bool = True) -> tuple[float, float]:
+        """One iteration: (loss, PSNR of the rendered training image; NaN unless ``measure_psnr``, which
+        costs a full-image pass: ``run`` measures it only on the steps whose progress line shows it)."""
         cfg = self.cfg
         self._set_lr()
         data = self.data[int(self.rng.integers(len(self.data)))]
@@ -325,7 +327,7 @@ class Trainer:
         sets = self.strategy.step(self.step, named_sets(self.splat), self.optimizer, self.boxes)
         store_sets(self.splat, sets)
         self.step += 1
-        return value, psnr(out.rgb, img, valid)
+        return value, psnr(out.rgb, img, valid) if measure_psnr else math.nan
 
     def _zero_grads_of_culled(self, rendered: dict[str, slice]) -> None:
         """Zero gradients for the present objects the view culled, as when every present object was
@@ -398,16 +400,16 @@ class Trainer:
         end = cfg.iterations if stop_at is None else min(cfg.iterations, int(stop_at))
         torch.set_num_threads(cfg.threads)
         t0 = time.perf_counter()
-        ema_loss, ema_psnr, reason = None, None, "iterations"
+        ema_psnr, reason = None, "iterations"
         bar = progress_bar(total=cfg.iterations, initial=self.step, desc=f"train {self.name}", unit="it",
                            disable=not progress, leave=False)
         try:
             while self.step < end and not self.plateau:
-                loss, p = self.train_step()
+                shown = (self.step + 1) % 10 == 0 or self.step + 1 in (1, end)  # the steps the bar shows
+                loss, p = self.train_step(measure_psnr=shown)
                 self.losses.append(loss)
-                ema_loss = loss if ema_loss is None else 0.9 * ema_loss + 0.1 * loss
-                if math.isfinite(p):
-                    ema_psnr = p if ema_psnr is None else 0.9 * ema_psnr + 0.1 * p
+                if math.isfinite(p):  # (every 10th step: the average runs over about the last 30)
+                    ema_psnr = p if ema_psnr is None else 0.7 * ema_psnr + 0.3 * p
                 self._check_plateau()
                 if self.step % 10 == 0 or self.step in (1, end):
                     status = {"psnr": f"{ema_psnr or 0.0:.2f}", "gaussians": self.splat.num_gaussians()}
