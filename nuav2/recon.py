@@ -27,6 +27,7 @@ from nuav2.splat.quality import QualityConfig, SourceCoverage
 from nuav2.splat.render_target import SplatImageSource, SplatRenderer
 from nuav2.splat.scene_model import SplatScene
 from nuav2.splat.train import CHECKPOINT_FILE, TrainConfig, Trainer, spread
+from nuav2.threads import numba_threads
 
 log = logging.getLogger(__name__)
 
@@ -55,7 +56,7 @@ class ReconConfig:
     channels: tuple[str, ...] | None = None  # source cameras (None: all ring cameras of the rig)
     sh_degree: int = 0
     seed: int = 0
-    threads: int = 2
+    threads: int = 2  # torch's, the seeding's and the numba kernels' threads (same trained scene for any)
     device: str = "auto"
     init: InitConfig = field(default_factory=InitConfig)
     train: TrainConfig = field(default_factory=lambda: TrainConfig(iterations_per_view=ITERATIONS_PER_VIEW))
@@ -166,8 +167,9 @@ def reconstruct(scene: SceneLog, config: ReconConfig | None = None, *, progress:
         keep = {id(v) for v in validation}
         train_views = [v for v in train_views if id(v) not in keep]
     others = list({id(v): v for v in [*held, *validation]}.values())
-    init = initial_scene(scene, train_views, cfg.init, sh_degree=cfg.sh_degree, seed=cfg.seed,
-                         progress=progress, other_views=others, threads=cfg.threads)
+    with numba_threads(cfg.threads):
+        init = initial_scene(scene, train_views, cfg.init, sh_degree=cfg.sh_degree, seed=cfg.seed,
+                             progress=progress, other_views=others, threads=cfg.threads)
     t_init = time.perf_counter() - t0
     train_cfg = replace(cfg.train, seed=cfg.seed, threads=cfg.threads).for_views(len(train_views))
     if init.budget is not None:  # the Gaussian budget follows the scene (nuav2.splat.budget)
@@ -180,7 +182,8 @@ def reconstruct(scene: SceneLog, config: ReconConfig | None = None, *, progress:
         if resume and (ckpt / CHECKPOINT_FILE).is_file():
             trainer.load(ckpt / CHECKPOINT_FILE)
             log.info("resumed %s at step %d", scene.log_id, trainer.step)
-    report = trainer.run(progress=progress, checkpoint_dir=ckpt)
+    with numba_threads(cfg.threads):  # (the result does not depend on it: _functions.BACKWARD_GROUPS)
+        report = trainer.run(progress=progress, checkpoint_dir=ckpt)
     splat = trainer.splat
     for o in splat.objects:  # refined box poses become the track's poses
         o.track.bake_deltas()

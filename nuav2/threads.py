@@ -3,6 +3,7 @@ kernels, OpenCV, BLAS) release the GIL."""
 
 from __future__ import annotations
 
+import contextlib
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ThreadPoolExecutor
@@ -36,3 +37,19 @@ def ordered_thread_map(fn: Callable[[T], R], items: Iterable[T], workers: int,
         finally:
             for f in pending:
                 f.cancel()
+
+
+@contextlib.contextmanager
+def numba_threads(n: int) -> Iterator[None]:
+    """The numba kernels launched from this thread inside the block run on at most ``n`` threads.
+
+    numba's own default is every core of the machine: a log that a worker trains on 2 of a node's 64
+    cores would launch 64 threads per kernel, and two workers on a 2-core machine four."""
+    import numba
+
+    before = numba.get_num_threads()
+    numba.set_num_threads(max(1, min(int(n), numba.config.NUMBA_NUM_THREADS)))
+    try:
+        yield
+    finally:
+        numba.set_num_threads(before)

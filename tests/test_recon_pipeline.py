@@ -354,3 +354,18 @@ def test_training_reports_progress_as_log_lines_when_not_a_terminal(tiny_scene, 
     assert len(lines) >= 20 and "20/20 it" in lines[-1]
     assert "held-out psnr=" in lines[-1] and "gaussians=" in lines[-1] and "psnr=" in lines[0]
     assert all("\r" not in line for line in lines)
+
+
+def test_reconstruction_bytes_do_not_depend_on_the_thread_count(tiny_scene):
+    """The same log gives the same scene on one thread as on two (and, since numba's threads follow
+    ``ReconConfig.threads``, on a node with any number of cores)."""
+    one = reconstruct(tiny_scene, replace(tiny_config(iterations=60), threads=1), progress=False)
+    two = reconstruct(tiny_scene, replace(tiny_config(iterations=60), threads=2), progress=False)
+    assert one.num_gaussians() == two.num_gaussians()
+    for name, t in one.background.tensors().items():
+        assert torch.equal(t, two.background.tensors()[name]), name
+    for a, b in zip(one.objects, two.objects, strict=True):
+        for name, t in a.gaussians.tensors().items():
+            assert torch.equal(t, b.gaussians.tensors()[name]), (a.track.key, name)
+    assert torch.equal(one.sky.texture, two.sky.texture)
+    assert one.info["train"]["validation"] == two.info["train"]["validation"]

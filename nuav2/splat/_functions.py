@@ -45,6 +45,13 @@ def threads_for(work: int):
         numba.set_num_threads(n)
 
 
+# The backward pass sums each Gaussian's gradient in one buffer per work group, then adds the buffers
+# in order: a number of groups set by the frame (not one per thread) makes the sums, and so a
+# reconstruction's bytes, the same on one thread as on two, and on any machine. (Two, one below
+# SMALL_WORK: the groups of the two-thread runs measured before this rule.)
+BACKWARD_GROUPS = 2
+
+
 def n_chunks() -> int:
     """Work groups per kernel launch: one per numba thread."""
     return max(1, numba.get_num_threads())
@@ -184,7 +191,7 @@ def composite_backward(frame: Frame, gcol: np.ndarray, gdep: np.ndarray, galp: n
     height, width = frame.T.shape
     rows = int(frame.last.max(initial=-1)) + 1
     with threads_for(frame.work):
-        groups = n_chunks()
+        groups = BACKWARD_GROUPS if frame.work >= SMALL_WORK else 1
         with stage("composite_bwd"):
             per_tile = (frame.slab_offsets[:, 1:] - frame.slab_offsets[:, :-1]).sum(0)
             tiles = _composite.heaviest_first(per_tile)[:np.count_nonzero(per_tile)]
