@@ -149,9 +149,17 @@ def reconstruct(scene: SceneLog, config: ReconConfig | None = None, *, progress:
 
     With ``checkpoint_dir`` the trainer saves there (every ``train.checkpoint_every`` steps and
     at the end); ``resume`` continues from the checkpoint found there, whichever device wrote it.
-    The scene comes back on ``config.device`` (``splat.info["device"]`` names it).
+    The scene comes back on ``config.device`` (``splat.info["device"]`` names it). numba's kernels run on
+    ``config.threads`` threads (numba's default is every core); the result does not depend on it
+    (``nuav2.splat._functions.BACKWARD_GROUPS``).
     """
     cfg = config or ReconConfig()
+    with numba_threads(cfg.threads):
+        return _reconstruct(scene, cfg, progress, checkpoint_dir, resume)
+
+
+def _reconstruct(scene: SceneLog, cfg: ReconConfig, progress: bool, checkpoint_dir: str | Path | None,
+                 resume: bool) -> SplatScene:
     device = resolve_device(cfg.device)  # before any work: an unusable device is one error up front
     torch.set_num_threads(cfg.threads)
     torch.manual_seed(cfg.seed)
@@ -167,9 +175,8 @@ def reconstruct(scene: SceneLog, config: ReconConfig | None = None, *, progress:
         keep = {id(v) for v in validation}
         train_views = [v for v in train_views if id(v) not in keep]
     others = list({id(v): v for v in [*held, *validation]}.values())
-    with numba_threads(cfg.threads):
-        init = initial_scene(scene, train_views, cfg.init, sh_degree=cfg.sh_degree, seed=cfg.seed,
-                             progress=progress, other_views=others, threads=cfg.threads)
+    init = initial_scene(scene, train_views, cfg.init, sh_degree=cfg.sh_degree, seed=cfg.seed,
+                         progress=progress, other_views=others, threads=cfg.threads)
     t_init = time.perf_counter() - t0
     train_cfg = replace(cfg.train, seed=cfg.seed, threads=cfg.threads).for_views(len(train_views))
     if init.budget is not None:  # the Gaussian budget follows the scene (nuav2.splat.budget)
@@ -182,8 +189,7 @@ def reconstruct(scene: SceneLog, config: ReconConfig | None = None, *, progress:
         if resume and (ckpt / CHECKPOINT_FILE).is_file():
             trainer.load(ckpt / CHECKPOINT_FILE)
             log.info("resumed %s at step %d", scene.log_id, trainer.step)
-    with numba_threads(cfg.threads):  # (the result does not depend on it: _functions.BACKWARD_GROUPS)
-        report = trainer.run(progress=progress, checkpoint_dir=ckpt)
+    report = trainer.run(progress=progress, checkpoint_dir=ckpt)
     splat = trainer.splat
     for o in splat.objects:  # refined box poses become the track's poses
         o.track.bake_deltas()

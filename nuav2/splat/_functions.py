@@ -15,6 +15,7 @@ import torch
 
 from nuav2.splat import _backward, _binning, _composite, _forward, _project
 from nuav2.splat._stages import count, stage
+from nuav2.threads import numba_threads
 
 
 def _np(t: torch.Tensor | None, shape: tuple[int, ...] = (), dtype=None) -> np.ndarray:
@@ -34,15 +35,11 @@ SMALL_WORK = 16_384
 @contextlib.contextmanager
 def threads_for(work: int):
     """Run the enclosed numba launches on one thread when ``work`` is small."""
-    n = numba.get_num_threads()
-    if work >= SMALL_WORK or n == 1:
+    if work >= SMALL_WORK or numba.get_num_threads() == 1:
         yield
         return
-    numba.set_num_threads(1)
-    try:
+    with numba_threads(1):
         yield
-    finally:
-        numba.set_num_threads(n)
 
 
 # The backward pass sums each Gaussian's gradient in one buffer per work group, then adds the buffers

@@ -411,7 +411,7 @@ class Trainer:
                 if math.isfinite(p):  # (every 10th step: the average runs over about the last 30)
                     ema_psnr = p if ema_psnr is None else 0.7 * ema_psnr + 0.3 * p
                 self._check_plateau()
-                if self.step % 10 == 0 or self.step in (1, end):
+                if shown:
                     status = {"psnr": f"{ema_psnr or 0.0:.2f}", "gaussians": self.splat.num_gaussians()}
                     if self.validation:
                         status["held-out psnr"] = f"{self.validation[-1][1]:.2f}"
