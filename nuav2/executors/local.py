@@ -102,6 +102,12 @@ def _stop_pool(pool: ProcessPoolExecutor, grace_s: float = EXIT_GRACE_S) -> None
             if proc.is_alive():
                 proc.kill()
                 proc.join(1.0)
+    # The pool's manager thread closes its wake-up pipe once the workers are gone; at exit Python 3.11
+    # writes to that pipe unless it is already closed (a race that printed "OSError: Bad file
+    # descriptor" after "terminated"), so let the thread finish here.
+    manager = getattr(pool, "_executor_manager_thread", None)
+    if manager is not None:
+        manager.join(max(1.0, deadline - time.monotonic()))
 
 
 def run_local(jobs: list[Path], dataroot: Path, options, progress: BatchProgress,
