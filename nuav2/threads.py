@@ -4,9 +4,11 @@ kernels, OpenCV, BLAS) release the GIL."""
 from __future__ import annotations
 
 import contextlib
+import sys
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ThreadPoolExecutor
+from functools import partial
 from itertools import islice
 from typing import TypeVar
 
@@ -19,13 +21,17 @@ def ordered_thread_map(fn: Callable[[T], R], items: Iterable[T], workers: int,
                        window: int | None = None) -> Iterator[R]:
     """``map(fn, items)`` on ``workers`` threads: results come back in input order, and at most
     ``window`` (default 2 x workers) are in flight, so a loop over a thousand images never holds a
-    thousand results. One worker (or fewer) runs in the calling thread."""
+    thousand results. One worker (or fewer) runs in the calling thread. The workers run numba's
+    kernels on the caller's numba thread count (numba keeps it per thread, and a new thread starts
+    at every core of the machine)."""
     if workers <= 1:
         yield from map(fn, items)
         return
     window = max(1, window or 2 * workers)
     it = iter(items)
-    with ThreadPoolExecutor(max_workers=workers) as pool:
+    numba = sys.modules.get("numba")  # only when something has loaded it: no import for plain loops
+    initializer = partial(numba.set_num_threads, numba.get_num_threads()) if numba is not None else None
+    with ThreadPoolExecutor(max_workers=workers, initializer=initializer) as pool:
         pending = deque(pool.submit(fn, item) for item in islice(it, window))
         try:
             while pending:

@@ -44,3 +44,20 @@ def test_a_failing_item_raises_in_the_consumer():
         for r in ordered_thread_map(work, range(20), workers=2):
             got.append(r)
     assert got == [0, 1, 2, 3, 4]
+
+
+def test_workers_run_numba_on_the_callers_thread_count():
+    """numba keeps its thread count per thread and a new thread starts at every core: without passing the
+    caller's count on, a seeding pool inside a 1-thread (or 2-of-64-core) reconstruction would launch
+    kernels on every core."""
+    import numba
+
+    from nuav2.threads import numba_threads
+
+    if numba.config.NUMBA_NUM_THREADS < 2:
+        pytest.skip("needs a machine where numba may use 2 threads, to see a limit of 1 apply")
+    with numba_threads(1):
+        seen = set(ordered_thread_map(lambda _: numba.get_num_threads(), range(6), workers=2))
+    assert seen == {1}
+    seen = set(ordered_thread_map(lambda _: numba.get_num_threads(), range(6), workers=2))
+    assert seen == {numba.get_num_threads()}
