@@ -319,13 +319,18 @@ def test_training_stops_when_heldout_psnr_stops_improving(tiny_scene):
 
 def test_the_iteration_cap_follows_the_number_of_training_images(tiny_scene):
     """A longer log (more training images) gets a higher cap, densification's end moving with it; a short
-    one keeps the preset's count. The presets' rule leaves a 2 s log at 600 / 2,000 iterations."""
+    one keeps the preset's count. The presets' rule leaves a 2 s log at 600 / 2,000 iterations; on a 15 s
+    log ``fast`` stays time-boxed well below ``default``'s cap."""
     base = TrainConfig(iterations=600, iterations_per_view=4.0, densify=DensifyConfig(stop=500))
     assert base.for_views(140) is base  # a 2 s log's 280 images at frame stride 2: 560 < 600
     long = base.for_views(1050)  # a 15 s log's 2,100 images at frame stride 2
     assert long.iterations == 4200 and long.densify.stop == 3500
     assert ReconConfig.fast().train.for_views(140).iterations == 600
     assert ReconConfig.default().train.for_views(272).iterations == 2000
+    fast_long = ReconConfig.fast().train.for_views(1050)
+    default_long = ReconConfig.default().train.for_views(2100)
+    assert 600 < fast_long.iterations < default_long.iterations / 4
+    assert fast_long.densify.stop < fast_long.iterations  # densification still ends before training does
     assert TrainConfig(iterations=50).for_views(10_000).iterations == 50  # off unless asked for
     assert TrainConfig(iterations=0, iterations_per_view=4.0).for_views(1050).iterations == 0  # seeding only
     cfg = tiny_config(iterations=10)

@@ -61,12 +61,16 @@ def main() -> None:
     ap.add_argument("--device", default="cpu", help="cpu (default), cuda or auto (see nuav2.recon)")
     ap.add_argument("--patience", type=int, default=None,
                     help="the early-stop rule's patience (0: never stop early; default: the preset's)")
+    ap.add_argument("--iterations-per-view", type=float, default=None,
+                    help="the cap's iterations per training image (default: the preset's)")
     ap.add_argument("--scale", type=float, default=DEFAULT_TARGET_SCALE, help="nuScenes rig scale scored")
     args = ap.parse_args()
     scene, world = read_log(args.log_dir), load_world(args.log_dir)
     cfg = replace(ReconConfig.preset(args.preset), device=args.device)
     if args.patience is not None:
         cfg = replace(cfg, train=replace(cfg.train, patience=args.patience))
+    if args.iterations_per_view is not None:
+        cfg = replace(cfg, train=replace(cfg.train, iterations_per_view=args.iterations_per_view))
     if args.half_res_iterations is not None:  # the coarse stage as a count, not a fraction of the cap
         views = source_views(scene, cfg.scale_for(scene), channels=default_channels(scene))
         n_train = len(views) // cfg.frame_stride
@@ -82,6 +86,7 @@ def main() -> None:
     print(json.dumps({
         "log": scene.log_id, "preset": args.preset, "device": splat.info["device"],
         "half_res_iterations": args.half_res_iterations, "patience": cfg.train.patience,
+        "iterations_per_view": getattr(cfg.train, "iterations_per_view", None),
         "iterations_cap": train.get("iterations"), "steps": train["steps"],
         "stop_reason": train["stop_reason"], "densify_stopped_at": train["densify_stopped_at"],
         "last_heldout_psnr_db": train["validation"][-1][1] if train["validation"] else None,
