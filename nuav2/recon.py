@@ -34,7 +34,7 @@ log = logging.getLogger(__name__)
 # The presets' training cap on a long log: this many iterations per training image (TrainConfig.for_views).
 # ``default`` trains towards the held-out plateau (4 per image: the patience rule, not the cap, ends a
 # 15 s log); ``fast`` is time-boxed to what its old fixed 600 iterations cost on a 15 s log (1.4 per
-# image: 1,470 steps, no more CPU or wall time than before, +1.2 to +2.4 dB; docs/reconstruction.md,
+# image: 1,470 steps, less CPU than before on four 15 s logs, +1.2 to +5.7 dB; docs/reconstruction.md,
 # "`fast` within the old time per log"). Logs up to ~6 s keep the 600-step floor.
 ITERATIONS_PER_VIEW = 4.0
 FAST_ITERATIONS_PER_VIEW = 1.4
