@@ -66,3 +66,11 @@ def test_cli_rejects_unknown_factor_and_renders_a_saved_result(tmp_path, capsys)
     md = (tmp_path / "t.md").read_text()
     assert "| easy | 25.00 | – | – | 30.00 | 0.900 | 0.950 | 0.80 | 3 (1) |" in md  # no gauge or ref. PSNR
     assert "| hard | 1.50 | 0.70 | 3.0-4.5 |" in md
+
+
+def test_cli_factors_empty_runs_the_easy_row_and_the_presets_only(tmp_path, capsys):
+    args = ["bench", "ablation", "--seeds", "0", "--factors", "", "--presets", "", "--seconds", "0.3",
+            "--image-scale", "0.0625", "--scale", "0.08", "--modes", "warp", "--speed-seconds", "0", "--json"]
+    assert cli_main(args) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert list(result["rows"]) == ["easy"]

@@ -28,8 +28,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "preset (see docs/realism.md).")
     p.add_argument("--seeds", default="0,1", help="world seeds (each >= 0), comma-separated")
     p.add_argument("--factors", default="all",
-                   help="factors to add one at a time (default: all; exposure_gains = exposure's gains "
-                        "without its sensor noise)")
+                   help="factors to add one at a time (default: all; '' for none, the easy row and the "
+                        "presets only; exposure_gains = exposure's gains without its sensor noise)")
     p.add_argument("--presets", default="medium,hard", help="whole presets to run too ('' for none)")
     p.add_argument("--seconds", type=synth_seconds, default=2.0, help="log length in seconds, > 0.05")
     p.add_argument("--image-scale", type=synth_image_scale, default=0.125,
@@ -88,7 +88,7 @@ def run(args: argparse.Namespace) -> int:
     else:
         seeds = parse_ints(args.seeds, "--seeds")
         factors = (ABLATION_FACTORS if args.factors == "all"
-                   else tuple(f.strip() for f in args.factors.split(",")))
+                   else tuple(f.strip() for f in args.factors.split(",") if f.strip()))
         presets = tuple(p.strip() for p in args.presets.split(",") if p.strip())
         modes = tuple(m.strip() for m in args.modes.split(",") if m.strip())
         for flag, got, known in (("--factors", factors, ABLATION_FACTORS), ("--presets", presets, PRESETS),
