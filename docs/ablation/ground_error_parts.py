@@ -11,8 +11,8 @@ sharpness and sub-pixel placement), and the aliasing floor (the point-sampled tr
 averaged over 3 x 3 rays per pixel). PSNRs pool the squared error of all images. Prints one JSON object.
 Usage (from the repository root):
 
-    nuav2 synth --preset hard --seed 0 LOGS && nuav2 convert av2 LOGS OUT --mode render --scale 0.125 \
-        --recon-preset fast
+    nuav2 synth --preset hard --seed 0 LOGS
+    nuav2 convert av2 LOGS OUT --mode render --scale 0.125 --recon-preset fast
     python docs/ablation/ground_error_parts.py LOGS/train/<log_id> OUT
 
 Section "Where hard's ground goes" of docs/reconstruction.md.
