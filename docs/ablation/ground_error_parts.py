@@ -4,7 +4,8 @@ For every key-frame camera image of a converted synthetic log, against the world
 the log's true mean exposure taken out, as the ablation's ref. PSNR), splits the ground pixels' squared
 error four ways, each pixel in the first that holds it: next to an actor or static structure (within 2 px
 of a pixel that is neither ground nor sky), unseen (no image of the log's cameras shows that ground point:
-outside every frame, or hidden there, by the world's exact depth), on an edge of the truth (Sobel
+outside every frame, or hidden there: no depth of the 3 x 3 pixels it falls on, in the world's exact
+depth image, within 5 % + 10 cm of its own, nor its depth between theirs), on an edge of the truth (Sobel
 magnitude of its grey level > 60 on 0-255, grown by 1 px: paint, kerbs, shadow borders), and the rest.
 Also: the ground PSNR after a Gaussian blur of the truth alone or of both images (how much of the error is
 sharpness and sub-pixel placement), and the aliasing floor (the point-sampled truth against the truth
@@ -38,8 +39,11 @@ SEEN_DEPTH_TOLERANCE = (0.05, 0.10)  # a source pixel shows the point when their
 SUPERSAMPLE = 3
 
 
-def psnr_of(sq_err_sum: float, n: int) -> float:
-    return round(float(10 * np.log10(255.0**2 / (sq_err_sum / max(n, 1)))), 2)
+def psnr_of(sq_err_sum: float, n: int) -> float | None:
+    """PSNR of ``n`` pixels with this summed squared error (None: no pixels, or no error)."""
+    if n == 0 or sq_err_sum <= 0:
+        return None
+    return round(float(10 * np.log10(255.0**2 / (sq_err_sum / n))), 2)
 
 
 def source_depths(log_dir: Path, world) -> list[tuple]:
@@ -69,8 +73,17 @@ def unseen(points_city: np.ndarray, sources: list[tuple]) -> np.ndarray:
         u[front] = np.floor(cam.K[0, 0] * p[front, 0] / z[front] + cam.K[0, 2] + 0.5).astype(np.int64)
         v[front] = np.floor(cam.K[1, 1] * p[front, 1] / z[front] + cam.K[1, 2] + 0.5).astype(np.int64)
         inside = front & (u >= 0) & (u < cam.width) & (v >= 0) & (v < cam.height)
-        d = depth[v[inside], u[inside]]
-        ok = np.abs(d - z[inside]) < SEEN_DEPTH_TOLERANCE[0] * z[inside] + SEEN_DEPTH_TOLERANCE[1]
+        zi, ui, vi = z[inside], u[inside], v[inside]
+        tol = SEEN_DEPTH_TOLERANCE[0] * zi + SEEN_DEPTH_TOLERANCE[1]
+        lo = np.full(len(zi), np.inf)
+        hi = np.full(len(zi), -np.inf)
+        ok = np.zeros(len(zi), bool)
+        for dv in (-1, 0, 1):  # the 3 x 3 pixels around: at grazing angles one pixel spans metres of depth
+            for du in (-1, 0, 1):
+                d = depth[np.clip(vi + dv, 0, cam.height - 1), np.clip(ui + du, 0, cam.width - 1)]
+                ok |= np.abs(d - zi) < tol
+                lo, hi = np.minimum(lo, d), np.maximum(hi, d)
+        ok |= (lo <= zi) & (zi <= hi)  # the point lies between the depths its neighbourhood shows
         seen[np.flatnonzero(inside)[ok]] = True
     return ~seen
 
