@@ -7,7 +7,7 @@ import math
 import numpy as np
 import torch
 
-from nuav2.splat.losses import SSIM_C1, depth_loss, photometric_loss, psnr, sky_loss, ssim_map
+from nuav2.splat.losses import SSIM_C1, depth_loss, flatness_loss, photometric_loss, psnr, sky_loss, ssim_map
 
 
 def test_ssim_identical_is_one_and_constant_images_match_formula():
@@ -137,3 +137,21 @@ def test_separable_ssim_equals_2d_window():
     va, vb, c = f(a * a) - ma**2, f(b * b) - mb**2, f(a * b) - ma * mb
     ref = ((2 * ma * mb + 1e-4) * (2 * c + 9e-4) / ((ma**2 + mb**2 + 1e-4) * (va + vb + 9e-4)))[0].mean(0)
     np.testing.assert_allclose(ssim_map(x, y).numpy(), ref.numpy(), atol=1e-12)
+
+
+def test_flatness_loss_is_the_mean_smallest_scale_and_pulls_on_that_axis_only():
+    scales = torch.tensor([[0.5, 0.02, 0.3], [0.1, 0.2, 0.4]], dtype=torch.float64)
+    log_scales = torch.log(scales).requires_grad_()
+    loss = flatness_loss(log_scales)
+    assert math.isclose(float(loss), (0.02 + 0.1) / 2, rel_tol=1e-12)
+    loss.backward()
+    grad = log_scales.grad.numpy()
+    # d/d log s of s/2 is s/2, on each row's smallest axis alone
+    np.testing.assert_allclose(grad, [[0.0, 0.01, 0.0], [0.05, 0.0, 0.0]], atol=1e-15)
+
+
+def test_flatness_loss_of_no_gaussians_is_zero_not_nan():
+    empty = torch.zeros((0, 3), requires_grad=True)
+    loss = flatness_loss(empty)
+    loss.backward()
+    assert float(loss) == 0.0 and empty.grad is not None and empty.grad.shape == (0, 3)

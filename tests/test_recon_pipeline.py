@@ -84,6 +84,19 @@ def test_target_rig_psnr_floor_and_training_gain(trained, seeded, tiny_scene, ti
     assert min(c["psnr_db"] for c in after["per_camera"].values()) >= 17.0  # CAM_BACK included
 
 
+def test_the_flatness_loss_leaves_the_background_thinner(trained, tiny_scene):
+    """The default pulls the background towards discs; without it the same run ends with thicker
+    Gaussians (LiDAR seeds start as spheres)."""
+    cfg = tiny_config()
+    assert cfg.train.lambda_flat > 0 and ReconConfig.fast().train.lambda_flat > 0  # on by default
+    loose = reconstruct(tiny_scene, replace(cfg, train=replace(cfg.train, lambda_flat=0.0)), progress=False)
+
+    def median_smallest_scale(splat: SplatScene) -> float:
+        return float(torch.exp(splat.background.log_scales.detach().min(dim=1).values).median())
+
+    assert median_smallest_scale(trained) < 0.8 * median_smallest_scale(loose)
+
+
 def test_heldout_source_views(trained, tiny_scene):
     held = heldout_psnr(trained, tiny_scene)
     assert held is not None and held["images"] == 14  # 7 cameras x 10 images, every 5th held out

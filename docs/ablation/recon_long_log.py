@@ -63,12 +63,16 @@ def main() -> None:
                     help="the early-stop rule's patience (0: never stop early; default: the preset's)")
     ap.add_argument("--iterations-per-view", type=float, default=None,
                     help="the cap's iterations per training image (default: the preset's)")
+    ap.add_argument("--lambda-flat", type=float, default=None,
+                    help="weight of the background's flatness loss (0: off; default: the preset's)")
     ap.add_argument("--scale", type=float, default=DEFAULT_TARGET_SCALE, help="nuScenes rig scale scored")
     args = ap.parse_args()
     scene, world = read_log(args.log_dir), load_world(args.log_dir)
     cfg = replace(ReconConfig.preset(args.preset), device=args.device)
     if args.patience is not None:
         cfg = replace(cfg, train=replace(cfg.train, patience=args.patience))
+    if args.lambda_flat is not None:
+        cfg = replace(cfg, train=replace(cfg.train, lambda_flat=args.lambda_flat))
     if args.iterations_per_view is not None:
         cfg = replace(cfg, train=replace(cfg.train, iterations_per_view=args.iterations_per_view))
     if args.half_res_iterations is not None:  # the coarse stage as a count, not a fraction of the cap
@@ -87,6 +91,7 @@ def main() -> None:
         "log": scene.log_id, "preset": args.preset, "device": splat.info["device"],
         "half_res_iterations": args.half_res_iterations, "patience": cfg.train.patience,
         "iterations_per_view": getattr(cfg.train, "iterations_per_view", None),
+        "lambda_flat": getattr(cfg.train, "lambda_flat", None),
         "iterations_cap": train.get("iterations"), "steps": train["steps"],
         "stop_reason": train["stop_reason"], "densify_stopped_at": train["densify_stopped_at"],
         "last_heldout_psnr_db": train["validation"][-1][1] if train["validation"] else None,

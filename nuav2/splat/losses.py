@@ -1,4 +1,4 @@
-"""Training losses: photometric (L1 + SSIM), LiDAR depth, sky/opacity, plus PSNR for progress.
+"""Training losses: photometric (L1 + SSIM), LiDAR depth, sky/opacity, flatness, plus PSNR for progress.
 
 Images are (H, W, 3) float tensors in [0, 1]. ``valid`` masks (H, W) bool mark pixels that
 carry scene content (False under the ego-vehicle body): there the target is replaced by the
@@ -12,6 +12,8 @@ import math
 
 import torch
 import torch.nn.functional as F
+
+from nuav2.splat.constants import LOG_SCALE_MAX, LOG_SCALE_MIN
 
 SSIM_C1 = 0.01**2
 SSIM_C2 = 0.03**2
@@ -104,6 +106,15 @@ def sky_loss(alpha: torch.Tensor, sky_mask: torch.Tensor | None, eps: float = 1e
     if sky_mask is None or not bool(sky_mask.any()):
         return alpha.sum() * 0.0
     return -torch.log((1 - alpha[sky_mask]).clamp_min(eps)).mean()
+
+
+def flatness_loss(log_scales: torch.Tensor) -> torch.Tensor:
+    """Mean of each Gaussian's smallest scale, in metres (0 for none): a pull towards thin discs, as
+    surfaces are. A blob that fits the source views from their side of the road shows a novel camera
+    (another height, another angle) a smear; a disc on the surface shows it the surface."""
+    if len(log_scales) == 0:
+        return log_scales.sum()
+    return torch.exp(log_scales.min(dim=1).values.clamp(LOG_SCALE_MIN, LOG_SCALE_MAX)).mean()
 
 
 def psnr(pred: torch.Tensor, target: torch.Tensor, valid: torch.Tensor | None = None) -> float:
