@@ -29,10 +29,13 @@ import numpy as np
 from scipy import ndimage as ndi
 
 from converters.av2 import read_log
-from nuav2.evaluate.against_world import key_camera_images, log_offsets, truth_view, world_region_masks
+from nuav2.evaluate.against_world import key_camera_images, log_offsets, world_region_masks
+from nuav2.geometry import T_inverse, transform_points
 from nuav2.maptr.dataset import load_image_rgb
+from nuav2.splat.views import project
 from nuav2.synth import load_world, render_view
 from nuav2.synth.camera_effects import expose, log_reference_gain
+from nuav2.warp.depth_proxy import pixel_rays_cam
 
 BLUR_SIGMAS_PX = (0.5, 1.0)
 SEEN_DEPTH_TOLERANCE = (0.05, 0.10)  # a source pixel shows the point when their depths agree to 5 % + 10 cm
@@ -48,8 +51,6 @@ def psnr_of(sq_err_sum: float, n: int) -> float | None:
 
 def source_depths(log_dir: Path, world) -> list[tuple]:
     """(camera, cam_T_city, exact depth image) of every image of the log's ring cameras."""
-    from nuav2.geometry import T_inverse
-
     scene = read_log(log_dir)
     out = []
     for cam in scene.rig.cameras:
@@ -63,17 +64,9 @@ def source_depths(log_dir: Path, world) -> list[tuple]:
 def unseen(points_city: np.ndarray, sources: list[tuple]) -> np.ndarray:
     """(N,) True where no source image shows the (N, 3) city points."""
     seen = np.zeros(len(points_city), bool)
-    homog = np.column_stack([points_city, np.ones(len(points_city))])
     for cam, cam_T_city, depth in sources:
-        p = homog @ cam_T_city[:3].T
-        z = p[:, 2]
-        front = z > 0.1
-        u = np.full(len(p), -1, np.int64)
-        v = np.full(len(p), -1, np.int64)
-        u[front] = np.floor(cam.K[0, 0] * p[front, 0] / z[front] + cam.K[0, 2] + 0.5).astype(np.int64)
-        v[front] = np.floor(cam.K[1, 1] * p[front, 1] / z[front] + cam.K[1, 2] + 0.5).astype(np.int64)
-        inside = front & (u >= 0) & (u < cam.width) & (v >= 0) & (v < cam.height)
-        zi, ui, vi = z[inside], u[inside], v[inside]
+        hit = project(points_city, cam, cam_T_city)
+        ui, vi, zi = np.floor(hit.u + 0.5).astype(np.int64), np.floor(hit.v + 0.5).astype(np.int64), hit.z
         tol = SEEN_DEPTH_TOLERANCE[0] * zi + SEEN_DEPTH_TOLERANCE[1]
         lo = np.full(len(zi), np.inf)
         hi = np.full(len(zi), -np.inf)
@@ -84,7 +77,7 @@ def unseen(points_city: np.ndarray, sources: list[tuple]) -> np.ndarray:
                 ok |= np.abs(d - zi) < tol
                 lo, hi = np.minimum(lo, d), np.maximum(hi, d)
         ok |= (lo <= zi) & (zi <= hi)  # the point lies between the depths its neighbourhood shows
-        seen[np.flatnonzero(inside)[ok]] = True
+        seen[hit.idx[ok]] = True
     return ~seen
 
 
@@ -102,7 +95,9 @@ def main() -> None:
     blur = {f"{which}_blurred_{s}": 0.0 for which in ("truth", "both") for s in BLUR_SIGMAS_PX}
     aliasing = 0.0
     for im in images:
-        truth, labels = truth_view(world, im.camera, im.city_T_cam, im.timestamp_ns)
+        # one exact render gives truth, depth and labels (ground and sky as truth_view labels them)
+        truth, depth, labels = render_view(world, im.camera, im.city_T_cam, im.timestamp_ns, with_depth=True,
+                                           with_labels=True)
         img = load_image_rgb(str(im.path))
         written = (img if gain is None else expose(img, 1.0 / np.asarray(gain))).astype(np.float64)
         masks = world_region_masks(labels)
@@ -111,12 +106,8 @@ def main() -> None:
         sq = ((written - t) ** 2).mean(-1)
         solid = ~(ground | masks["sky"])
         near = ndi.binary_dilation(solid, iterations=2) & ground
-        _, depth = render_view(world, im.camera, im.city_T_cam, im.timestamp_ns, with_depth=True)
-        K = im.camera.K
         vv, uu = np.nonzero(ground & ~near)
-        z = depth[vv, uu].astype(np.float64)
-        cam_xyz = np.column_stack([(uu - K[0, 2]) / K[0, 0] * z, (vv - K[1, 2]) / K[1, 1] * z, z])
-        city_xyz = cam_xyz @ im.city_T_cam[:3, :3].T + im.city_T_cam[:3, 3]
+        city_xyz = transform_points(im.city_T_cam, pixel_rays_cam(im.camera)[vv, uu] * depth[vv, uu, None])
         hidden = np.zeros_like(ground)
         hidden[vv, uu] = unseen(city_xyz, sources)
         grey = t.mean(-1)

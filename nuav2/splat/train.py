@@ -51,8 +51,8 @@ class TrainConfig:
     lambda_depth: float = 0.05
     lambda_sky: float = 0.05
     # The background's Gaussians are pulled towards flat discs (x the mean smallest scale in metres;
-    # 0: off): +0.1 to +0.4 dB on the nuScenes rig's ground of six 2 s logs (docs/reconstruction.md,
-    # "Flat background Gaussians"). Objects are left alone: it moved their PSNR either way.
+    # 0: off): +0.05 to +0.37 dB on the nuScenes rig's ground of nine runs, 2 s and 15 s logs
+    # (docs/reconstruction.md, "Flat background Gaussians"). Objects are left alone.
     lambda_flat: float = 10.0
     depth_trim: float = 0.95
     lr_means: float = 1.6e-4  # x extent, decays x0.01 over the run
