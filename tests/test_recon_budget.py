@@ -14,6 +14,7 @@ from nuav2.splat.budget import (
     GroundSeeds,
     keep_by_priority,
     merge_plain_ground,
+    merge_plain_structure,
     scene_budget,
 )
 
@@ -44,6 +45,35 @@ def test_plain_ground_merges_and_paint_keeps_its_fine_seeds():
     plain = merge_plain_ground(grid_seeds(8, 0.25, lambda x, y: (0.3, 0.3, 0.3)), levels=2, tol=0.05)
     assert len(plain) == 4 and np.all(plain.size == 4)
     np.testing.assert_allclose(np.sort(plain.xyz[:, 0]), [0.5, 0.5, 1.5, 1.5])  # block centres
+
+
+def test_plain_structure_merges_and_textured_structure_keeps_its_seeds():
+    # Two 3 x 3 m walls of 0.15 m LiDAR voxels: one plain, one with a 0.15 m checker (texture finer than the
+    # merge voxel), and a far plain wall in distance band 1 (voxels twice the size).
+    g = (np.arange(20) + 0.5) * 0.15
+    yy, zz = (a.ravel() for a in np.meshgrid(g, g))
+    plain = np.column_stack([np.full(400, 5.05), yy, zz])
+    checker = plain + [0.0, 6.0, 0.0]
+    far = np.column_stack([np.full(100, 40.1), (np.arange(100) % 10 + 0.5) * 0.3,
+                           (np.arange(100) // 10 + 0.5) * 0.3])
+    dark = ((np.floor(checker[:, 1] / 0.15) + np.floor(checker[:, 2] / 0.15)) % 2).astype(bool)
+    rgb = np.concatenate([np.full((400, 3), 0.4), np.where(dark[:, None], 0.1, 0.9) * np.ones(3),
+                          np.full((100, 3), 0.6)])
+    band = np.concatenate([np.zeros(800, np.int64), np.ones(100, np.int64)])
+    pts, col, size = merge_plain_structure(np.concatenate([plain, checker, far]), rgb, band, 0.15, 2, 0.05)
+    near = pts[:, 0] < 10
+    is_plain, is_checker = near & (pts[:, 1] < 3.5), near & (pts[:, 1] > 5.5)
+    assert is_checker.sum() == 400 and np.all(size[is_checker] == 1)  # every textured seed kept
+    # each plain voxel of 4 x 4 seeds (0.6 m) ends as one seed of four times the spacing, its mean colour
+    assert is_plain.sum() == 25 and np.all(size[is_plain] == 4)
+    np.testing.assert_allclose(col[is_plain], 0.4)
+    np.testing.assert_allclose(np.sort(pts[is_plain, 1])[::5], (np.arange(5) + 0.5) * 0.6, atol=1e-9)
+    far_left = ~is_plain & ~is_checker  # band 1 merges on 0.6 m, then 1.2 m voxels
+    assert far_left.sum() == 9 and np.isclose(pts[far_left, 0], 40.1).all()
+    # nothing merges at levels=0 or with a tolerance below the colours' spread
+    assert len(merge_plain_structure(plain, rgb[:400], band[:400], 0.15, 0, 0.05)[0]) == 400
+    jitter = rgb[:400] + np.random.default_rng(0).uniform(-0.1, 0.1, (400, 3))
+    assert len(merge_plain_structure(plain, jitter, band[:400], 0.15, 2, 0.01)[0]) == 400
 
 
 def test_thinning_keeps_tiers_in_order_and_samples_the_straddling_one():
@@ -79,6 +109,8 @@ def test_seeding_a_log_gives_a_scene_budget_and_coarse_plain_ground(tmp_path):
     st = res.stats
     seen_ground = st["ground_seeds"] - st["unseen_ground_seeds"]
     assert seen_ground < 0.6 * st["ground_seeds_fine"]  # plain asphalt and sidewalk merged
+    structure = st["background_lidar_seeds"] + st["facade_seeds"]
+    assert structure < 0.8 * st["structure_seeds_fine"]  # plain walls merged too
     assert st["seeds_by_tier"]["textured ground"] > 200  # paint, kerbs and crossings stayed fine
     n_seeds = st["background_gaussians"] + st["object_gaussians"]
     assert res.budget == scene_budget(n_seeds, st["moving_tracks"], cfg.budget)
@@ -88,6 +120,7 @@ def test_seeding_a_log_gives_a_scene_budget_and_coarse_plain_ground(tmp_path):
     assert fixed.budget is None  # no merging: every fine seed, seen or filled, is its own Gaussian
     fs = fixed.stats
     assert fs["ground_seeds"] == fs["ground_seeds_fine"] + fs["unseen_ground_seeds"]
+    assert fs["background_lidar_seeds"] + fs["facade_seeds"] == fs["structure_seeds_fine"]
     # The road under and behind the ego, which no image sees, is kept with its neighbours' colour
     assert 0 < st["unseen_ground_seeds"] < st["ground_seeds"]
     dropped = initial_scene(scene, views, replace(cfg, unseen_ground_reach_m=0.0), sh_degree=0).stats

@@ -2,8 +2,9 @@
 
 Seeds follow the scene: ground seeds cover the area the trajectory sees, on a fine grid only
 where the ground has texture (lane paint, crossings, kerbs) and merged into coarser discs where
-it is plain (:func:`merge_plain_ground`); LiDAR seeds follow what stands (facades, parked cars,
-poles); each moving track brings its own. The densification budget is the seed count times a
+it is plain (:func:`merge_plain_ground`); LiDAR and facade seeds follow what stands (facades, parked
+cars, poles), merged into coarser ones where the structure is plain (:func:`merge_plain_structure`);
+each moving track brings its own. The densification budget is the seed count times a
 growth factor plus a share per moving track (:func:`scene_budget`), so a plain, empty road ends
 with fewer Gaussians than a busy junction. When seeds exceed the cap they are kept by priority
 (:func:`keep_by_priority`): textured ground (paint) first, then plain ground, then LiDAR and
@@ -17,6 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from nuav2.cells import unique_cells
+
 F64 = np.ndarray
 
 TIER_PAINT, TIER_GROUND, TIER_NEAR, TIER_FAR = 0, 1, 2, 3
@@ -29,6 +32,7 @@ class BudgetConfig:
 
     merge_levels: int = 2  # plain ground merges up to 2^levels x the seed spacing
     merge_tol: float = 0.05  # merge a 2x2 block when no child's colour is further than this from the mean
+    structure_merge_levels: int = 1  # plain LiDAR / facade seeds: up to 2^levels x their voxel (0: never)
     growth: float = 1.25  # densification budget = seeds x growth ...
     per_moving_track: int = 1500  # ... + this many per moving track
     min_budget: int = 20_000
@@ -82,6 +86,39 @@ def merge_plain_ground(seeds: GroundSeeds, levels: int, tol: float) -> GroundSee
                           np.concatenate([out.cell[keep], new_cell]),
                           np.concatenate([out.size[keep], np.full(len(members), 2 * size, np.int64)]))
     return out
+
+
+def merge_plain_structure(points: F64, rgb: np.ndarray, band: np.ndarray, voxel_m: float, levels: int,
+                          tol: float) -> tuple[F64, np.ndarray, np.ndarray]:
+    """Merge LiDAR and facade seeds of plain structure into coarser ones, ``levels`` times: at level l
+    the seeds of distance band k share a voxel of ``voxel_m * 2**(k + l + 1)``; a voxel merges into one
+    seed (mean position and colour) when it holds at least two seeds, all of size ``2**l`` (no finer
+    texture inside) and no colour further than ``tol`` from their mean. Returns points, colours and
+    each seed's size in its band's voxels (1, 2, 4, ...); kNN scales then widen with the spacing."""
+    pts, col = np.asarray(points, np.float64), np.asarray(rgb, np.float64)
+    band, size = np.asarray(band, np.int64), np.ones(len(pts), np.int64)
+    for level in range(levels):
+        if len(pts) < 2:
+            break
+        cell_m = voxel_m * 2.0 ** (band + level + 1)
+        key = np.column_stack([band, np.floor(pts / cell_m[:, None]).astype(np.int64)])
+        first, inverse, counts = unique_cells(key.astype(np.float64), 1.0)
+        n = len(counts)
+        mean = np.stack([np.bincount(inverse, col[:, c], n) for c in range(3)], 1) / counts[:, None]
+        spread = np.zeros(n)
+        np.maximum.at(spread, inverse, np.abs(col - mean[inverse]).max(1))
+        finer = np.zeros(n, bool)
+        finer[inverse[size != (1 << level)]] = True
+        merge = (counts >= 2) & ~finer & (spread <= tol)
+        if not merge.any():
+            break
+        gone = merge[inverse]
+        centre = np.stack([np.bincount(inverse, pts[:, d], n) for d in range(3)], 1) / counts[:, None]
+        pts = np.concatenate([pts[~gone], centre[merge]])
+        col = np.concatenate([col[~gone], mean[merge]])
+        band = np.concatenate([band[~gone], band[first[merge]]])
+        size = np.concatenate([size[~gone], np.full(int(merge.sum()), 2 << level, np.int64)])
+    return pts, col.astype(np.asarray(rgb).dtype, copy=False), size
 
 
 def keep_by_priority(tier: np.ndarray, cap: int, rng: np.random.Generator) -> np.ndarray:

@@ -31,6 +31,7 @@ from nuav2.splat.budget import (
     GroundSeeds,
     keep_by_priority,
     merge_plain_ground,
+    merge_plain_structure,
     scene_budget,
 )
 from nuav2.splat.colouring import colour_seeds
@@ -125,6 +126,16 @@ def _unseen_ground(xyz: F64, rgb: np.ndarray, kept: np.ndarray, cell: np.ndarray
     return GroundSeeds(xyz[idx], colours, cell[idx], np.ones(len(idx), np.int64))
 
 
+def _merge_structure(points: F64, rgb: np.ndarray, path_xy: F64, cfg: InitConfig) -> tuple[F64, np.ndarray]:
+    """:func:`merge_plain_structure` on the voxel bands the LiDAR was downsampled on."""
+    if len(points) == 0:
+        return points, rgb
+    band = distance_bands(points[:, :2], path_xy, cfg.voxel_bands_m)
+    levels, tol = cfg.budget.structure_merge_levels, cfg.budget.merge_tol
+    merged, merged_rgb, _ = merge_plain_structure(points, rgb, band, cfg.voxel_m, levels, tol)
+    return merged, merged_rgb
+
+
 def initial_scene(scene: SceneLog, views: list[SourceView], cfg: InitConfig, *, sh_degree: int = 1,
                   seed: int = 0, progress: bool = False, other_views: list[SourceView] = (),
                   threads: int = 1) -> InitResult:
@@ -185,10 +196,17 @@ def initial_scene(scene: SceneLog, views: list[SourceView], cfg: InitConfig, *, 
     rest = ~is_ground & keep
     facade, facade_rgb = (facade_seeds(views, bg_col.sky_masks, sky_masks, bg_lidar, scene_T_city, cfg)
                           if cfg.facade_view_stride > 0 else (np.zeros((0, 3)), np.zeros((0, 3))))
-    bg_pts = np.concatenate([g.xyz, g_fill.xyz, bg_pts[rest], facade])
-    bg_rgb = np.concatenate([g.rgb, g_fill.rgb, bg_rgb[rest], facade_rgb])
-    n_rest = int(rest.sum()) + len(facade)
-    kind = np.concatenate([np.full(len(g) + len(g_fill), GROUND), kind[rest], np.full(len(facade), FACADE)])
+    lidar, lidar_rgb = bg_pts[rest], bg_rgb[rest]
+    n_structure_fine = len(lidar) + len(facade)
+    if cfg.budget is not None and cfg.budget.structure_merge_levels > 0:
+        # Plain walls and parked cars merge into coarser seeds; window frames, signs and trunks keep theirs.
+        lidar, lidar_rgb = _merge_structure(lidar, lidar_rgb, path_xy, cfg)
+        facade, facade_rgb = _merge_structure(facade, facade_rgb, path_xy, cfg)
+    bg_pts = np.concatenate([g.xyz, g_fill.xyz, lidar, facade])
+    bg_rgb = np.concatenate([g.rgb, g_fill.rgb, lidar_rgb, facade_rgb])
+    n_rest = len(lidar) + len(facade)
+    kind = np.concatenate([np.full(len(g) + len(g_fill), GROUND), np.full(len(lidar), LIDAR),
+                           np.full(len(facade), FACADE)])
     filled = np.concatenate([np.zeros(len(g), bool), np.ones(len(g_fill), bool), np.zeros(n_rest, bool)])
     spacing = np.concatenate([g.size * cfg.ground_spacing_m, g_fill.size * cfg.ground_spacing_m,
                               np.zeros(n_rest)])
@@ -243,7 +261,7 @@ def initial_scene(scene: SceneLog, views: list[SourceView], cfg: InitConfig, *, 
              "non_rigid_segments": sum(t.segment is not None for t in moving.values()),
              "lidar_sweeps": agg.n_sweeps, "lidar_points": agg.n_points,
              "background_lidar_seeds": int((kind == LIDAR).sum()),
-             "facade_seeds": int((kind == FACADE).sum()),
+             "facade_seeds": int((kind == FACADE).sum()), "structure_seeds_fine": n_structure_fine,
              "ground_seeds": int(is_ground.sum()), "ground_seeds_fine": n_fine,
              "unseen_ground_seeds": int(filled.sum()),
              "seeds_by_tier": {name: int((tier == t).sum()) for t, name in enumerate(TIER_NAMES)},
