@@ -42,3 +42,12 @@ def unique_cells(points: F64, cell_m: float, shift: float = 0.0) -> tuple[np.nda
         key = key * span[d] + k[:, d]
     _, first, inverse, counts = np.unique(key, return_index=True, return_inverse=True, return_counts=True)
     return first, inverse.reshape(-1), counts
+
+
+def cell_means(values: np.ndarray, inverse: np.ndarray, counts: np.ndarray) -> F64:
+    """(M, D) mean of the (N, D) ``values`` per cell (:func:`unique_cells`' ``inverse`` and ``counts``)."""
+    values = np.asarray(values, np.float64).reshape(len(inverse), -1)
+    out = np.zeros((len(counts), values.shape[1]))
+    for d in range(values.shape[1]):
+        out[:, d] = np.bincount(inverse, weights=values[:, d], minlength=len(counts)) / counts
+    return out

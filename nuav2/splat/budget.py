@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from nuav2.cells import unique_cells
+from nuav2.cells import cell_means, unique_cells
 
 F64 = np.ndarray
 
@@ -101,10 +101,10 @@ def merge_plain_structure(points: F64, rgb: np.ndarray, band: np.ndarray, voxel_
         if len(pts) < 2:
             break
         cell_m = voxel_m * 2.0 ** (band + level + 1)
-        key = np.column_stack([band, np.floor(pts / cell_m[:, None]).astype(np.int64)])
-        first, inverse, counts = unique_cells(key.astype(np.float64), 1.0)
+        # band, then the voxel at that band's size: one unit cell per (band, voxel)
+        first, inverse, counts = unique_cells(np.column_stack([band, pts / cell_m[:, None]]), 1.0)
         n = len(counts)
-        mean = np.stack([np.bincount(inverse, col[:, c], n) for c in range(3)], 1) / counts[:, None]
+        mean = cell_means(col, inverse, counts)
         spread = np.zeros(n)
         np.maximum.at(spread, inverse, np.abs(col - mean[inverse]).max(1))
         finer = np.zeros(n, bool)
@@ -113,8 +113,7 @@ def merge_plain_structure(points: F64, rgb: np.ndarray, band: np.ndarray, voxel_
         if not merge.any():
             break
         gone = merge[inverse]
-        centre = np.stack([np.bincount(inverse, pts[:, d], n) for d in range(3)], 1) / counts[:, None]
-        pts = np.concatenate([pts[~gone], centre[merge]])
+        pts = np.concatenate([pts[~gone], cell_means(pts, inverse, counts)[merge]])
         col = np.concatenate([col[~gone], mean[merge]])
         band = np.concatenate([band[~gone], band[first[merge]]])
         size = np.concatenate([size[~gone], np.full(int(merge.sum()), 2 << level, np.int64)])

@@ -128,8 +128,6 @@ def _unseen_ground(xyz: F64, rgb: np.ndarray, kept: np.ndarray, cell: np.ndarray
 
 def _merge_structure(points: F64, rgb: np.ndarray, path_xy: F64, cfg: InitConfig) -> tuple[F64, np.ndarray]:
     """:func:`merge_plain_structure` on the voxel bands the LiDAR was downsampled on."""
-    if len(points) == 0:
-        return points, rgb
     band = distance_bands(points[:, :2], path_xy, cfg.voxel_bands_m)
     levels, tol = cfg.budget.structure_merge_levels, cfg.budget.merge_tol
     merged, merged_rgb, _ = merge_plain_structure(points, rgb, band, cfg.voxel_m, levels, tol)

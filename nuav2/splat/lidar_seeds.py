@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from nuav2.cells import cell_indices, unique_cells
+from nuav2.cells import cell_indices, cell_means, unique_cells
 from nuav2.geometry import F64, T_inverse
 from nuav2.progress import progress_bar
 from nuav2.scene import SceneLog
@@ -80,10 +80,7 @@ def voxel_downsample(points: F64, voxel_m: float) -> F64:
     if not voxel_m > 0:
         raise ValueError(f"voxel size must be > 0, got {voxel_m}")
     _, inv, counts = unique_cells(points, voxel_m)
-    out = np.zeros((len(counts), 3))
-    for d in range(3):
-        out[:, d] = np.bincount(inv, weights=points[:, d], minlength=len(counts)) / counts
-    return out
+    return cell_means(points, inv, counts)
 
 
 def distance_to_path(points_xy: F64, path_xy: F64) -> F64:
