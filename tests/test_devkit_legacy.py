@@ -1,7 +1,7 @@
 """MapTR's older stack (nuscenes-devkit 1.1.11, shapely 1.8) opens a converted database through
 ``nuav2/devkit_hook`` alone: no ``import nuav2`` there, and MapTR's scripts unchanged.
 
-Needs the small venv that ``.ci/devkit_legacy_venv`` builds (a separate CI step); without it the
+Needs the small venv that ``.ci/devkit_legacy_venv`` builds (CI builds it before the suite); without it the
 test skips and says so. ``NUAV2_LEGACY_PYTHON`` points at another interpreter with that stack.
 """
 
@@ -65,7 +65,7 @@ def legacy_python() -> Path:
     if not path.exists():
         if given:
             pytest.fail(f"NUAV2_LEGACY_PYTHON={given} does not exist")
-        pytest.skip(f"{path} not built: run .ci/devkit_legacy_venv (CI does, as its own step)")
+        pytest.skip(f"{path} not built: run .ci/devkit_legacy_venv (CI does, before the suite)")
     return path
 
 
