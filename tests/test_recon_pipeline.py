@@ -311,14 +311,14 @@ def test_render_source_through_the_real_writer_and_devkit(trained, tiny_scene, t
 def test_training_stops_when_heldout_psnr_stops_improving(tiny_scene):
     """Patience rule: densification ends at the first plateau of held-out PSNR, training at the second,
     long before the iteration cap, and neither is called before training reaches full resolution (step
-    900 here), the resolution the rule measures at."""
+    300 here), the resolution the rule measures at."""
     cfg = tiny_config(iterations=3000)
     cfg = replace(cfg, train=replace(cfg.train, eval_every=20, patience=2, min_delta_db=0.3,
-                                     densify=replace(cfg.train.densify, stop=2400)))
+                                     pyramid_until=(0.1,), densify=replace(cfg.train.densify, stop=2400)))
     splat = reconstruct(tiny_scene, cfg, progress=False)
     rep = splat.info["train"]
     assert rep["stop_reason"] == "plateau" and rep["steps"] < 1500
-    assert rep["densify_stopped_at"] is not None and 900 + 2 * 20 <= rep["densify_stopped_at"] < rep["steps"]
+    assert rep["densify_stopped_at"] is not None and 300 + 2 * 20 <= rep["densify_stopped_at"] < rep["steps"]
     vals = [v for _, v in rep["validation"]]
     assert len(vals) == rep["steps"] // 20
     assert max(vals[-2:]) <= max(vals[:-2]) + 0.3  # the last two measurements brought no 0.3 dB gain

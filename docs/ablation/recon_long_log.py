@@ -65,6 +65,8 @@ def main() -> None:
                     help="the cap's iterations per training image (default: the preset's)")
     ap.add_argument("--lambda-flat", type=float, default=None,
                     help="weight of the background's flatness loss (0: off; default: the preset's)")
+    ap.add_argument("--structure-merge-levels", type=int, default=None,
+                    help="levels of the plain structure merge (0: off; default: the preset's)")
     ap.add_argument("--scale", type=float, default=DEFAULT_TARGET_SCALE, help="nuScenes rig scale scored")
     args = ap.parse_args()
     scene, world = read_log(args.log_dir), load_world(args.log_dir)
@@ -73,6 +75,9 @@ def main() -> None:
         cfg = replace(cfg, train=replace(cfg.train, patience=args.patience))
     if args.lambda_flat is not None:
         cfg = replace(cfg, train=replace(cfg.train, lambda_flat=args.lambda_flat))
+    if args.structure_merge_levels is not None:
+        budget = replace(cfg.init.budget, structure_merge_levels=args.structure_merge_levels)
+        cfg = replace(cfg, init=replace(cfg.init, budget=budget))
     if args.iterations_per_view is not None:
         cfg = replace(cfg, train=replace(cfg.train, iterations_per_view=args.iterations_per_view))
     if args.half_res_iterations is not None:  # the coarse stage as a count, not a fraction of the cap
@@ -92,6 +97,7 @@ def main() -> None:
         "half_res_iterations": args.half_res_iterations, "patience": cfg.train.patience,
         "iterations_per_view": getattr(cfg.train, "iterations_per_view", None),
         "lambda_flat": getattr(cfg.train, "lambda_flat", None),
+        "structure_merge_levels": cfg.init.budget.structure_merge_levels if cfg.init.budget else None,
         "iterations_cap": train.get("iterations"), "steps": train["steps"],
         "stop_reason": train["stop_reason"], "densify_stopped_at": train["densify_stopped_at"],
         "last_heldout_psnr_db": train["validation"][-1][1] if train["validation"] else None,
