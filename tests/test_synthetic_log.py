@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import os
-import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -20,7 +19,7 @@ from av2.map.map_api import ArgoverseStaticMap, RasterLayerType
 from av2.structures.cuboid import Cuboid
 from av2.structures.sweep import Sweep
 from av2.utils.io import read_img
-from process_helpers import default_sigint, wait_while_running
+from process_helpers import default_sigint, interrupt, wait_while_running
 
 from nuav2.cli import main as cli_main
 from nuav2.geometry import T_from_quat_trans
@@ -219,9 +218,9 @@ def test_an_interrupted_synth_leaves_nothing_behind(tmp_path: Path):
     try:
         wait_while_running(proc, lambda: (out / "train").is_dir() and any((out / "train").iterdir()), 120,
                            "synth never started writing", poll_s=0.05)
-        proc.send_signal(signal.SIGINT)
-        _, err = proc.communicate(timeout=60)
+        err, sig_state = interrupt(proc)
     finally:
         proc.kill()
-    assert proc.returncode == 130 and err.strip().splitlines()[-1] == "interrupted", err
+    assert proc.returncode == 130 and err.strip().splitlines()[-1:] == ["interrupted"], \
+        f"exit {proc.returncode}, {sig_state}: {err}"
     assert list(tmp_path.iterdir()) == []
