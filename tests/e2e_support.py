@@ -10,8 +10,7 @@ Every consumer test runs on these, never on a hand-written table or sidecar:
   the nuScenes rig at 1/16 scale (the costly one: ~25 s of CPU);
 - ``two_run_db``: two synthetic logs from two split directories converted by two runs into one OUT.
 
-Conversions run under umask 022 through the command line (``nuav2.cli.main``), once per test run
-(``built_once``: the xdist workers share them).
+Conversions run under umask 022 through the command line (``nuav2.cli.main``).
 """
 
 from __future__ import annotations
@@ -20,15 +19,14 @@ import json
 from pathlib import Path
 
 import pytest
-from built_once import built_once
 from e2e_helpers import FIXTURE_ID, SYNTH_SECONDS, cli, convert, imaged_copy
 
 
 @pytest.fixture(scope="session")
 def fixture_log(av2_fixture_log: Path, av2_fixture_calibration: Path, tmp_path_factory) -> Path:
     """The real fixture log in a ``val`` split dir, with calibration and blank camera images."""
-    return built_once(tmp_path_factory, "e2e_src", lambda d: imaged_copy(
-        av2_fixture_log, av2_fixture_calibration, d / "val", FIXTURE_ID))
+    return imaged_copy(av2_fixture_log, av2_fixture_calibration, tmp_path_factory.mktemp("e2e_src") / "val",
+                       FIXTURE_ID)
 
 
 @pytest.fixture(scope="session")
@@ -45,15 +43,13 @@ def synth(root: Path, seed: int, split: str = "train") -> Path:
 
 @pytest.fixture(scope="session")
 def synth_log(tmp_path_factory) -> Path:
-    return built_once(tmp_path_factory, "e2e_synth", lambda d: synth(d, 3))
+    return synth(tmp_path_factory.mktemp("e2e_synth"), 3)
 
 
 def converted(tmp_path_factory, name: str, src: Path, *flags: str) -> Path:
-    """``nuav2 convert av2 SRC <folder>/out FLAGS``, once per test run: the dataroot."""
-    def build(folder: Path) -> Path:
-        convert(src, folder / "out", *flags)
-        return folder / "out"
-    return built_once(tmp_path_factory, name, build)
+    out = tmp_path_factory.mktemp(name) / "out"
+    convert(src, out, *flags)
+    return out
 
 
 @pytest.fixture(scope="session")
@@ -74,7 +70,7 @@ def tiny_synth_log(tmp_path_factory) -> Path:
 
     config = SynthConfig(seconds=0.5, image_scale=1 / 16, lidar_azimuth_steps=256, n_parked=2, n_moving=2,
                          n_pedestrians=0, map_margin_m=30.0)
-    return built_once(tmp_path_factory, "e2e_tiny_synth", lambda d: generate_log(d, seed=3, config=config))
+    return generate_log(tmp_path_factory.mktemp("e2e_tiny_synth"), seed=3, config=config)
 
 
 @pytest.fixture(scope="session")
@@ -86,15 +82,13 @@ def render_db(tiny_synth_log: Path, tmp_path_factory) -> Path:
 @pytest.fixture(scope="session")
 def synth_val_log(tmp_path_factory) -> Path:
     """A second synthetic log (another seed: another place and clock), in a ``val`` split dir."""
-    return built_once(tmp_path_factory, "e2e_synth_val", lambda d: synth(d, 4, "val"))
+    return synth(tmp_path_factory.mktemp("e2e_synth_val"), 4, "val")
 
 
 @pytest.fixture(scope="session")
 def two_run_db(synth_log: Path, synth_val_log: Path, tmp_path_factory) -> tuple[Path, list]:
     """(OUT, [summary of run 1, summary of run 2]): the train split converted, then val, into one OUT."""
-    def build(folder: Path) -> tuple[Path, list]:
-        out = folder / "out"
-        first = convert(synth_log.parent, out)
-        second = convert(synth_val_log.parent, out)
-        return out, [first, second]
-    return built_once(tmp_path_factory, "e2e_two_runs", build)
+    out = tmp_path_factory.mktemp("e2e_two_runs") / "out"
+    first = convert(synth_log.parent, out)
+    second = convert(synth_val_log.parent, out)
+    return out, [first, second]

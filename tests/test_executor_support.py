@@ -7,7 +7,6 @@ import shutil
 from pathlib import Path
 
 import pytest
-from built_once import built_once
 
 from nuav2.cli import main
 from nuav2.synth import SynthConfig, generate_log
@@ -37,20 +36,18 @@ def corrupt_copy(src: Path, dst: Path, bad_log: str) -> Path:
 @pytest.fixture(scope="session")
 def synth_split(tmp_path_factory) -> Path:
     """A split folder with three 0.5 s synthetic logs."""
-    def build(root: Path) -> Path:
-        for seed in SEEDS:
-            generate_log(root / "av2", seed=seed, config=TINY)
-        return root / "av2" / "train"
-    return built_once(tmp_path_factory, "executor_logs", build)
+    root = tmp_path_factory.mktemp("executor_logs")
+    for seed in SEEDS:
+        generate_log(root / "av2", seed=seed, config=TINY)
+    return root / "av2" / "train"
 
 
 @pytest.fixture(scope="session")
 def reference_out(synth_split: Path, tmp_path_factory) -> Path:
     """The dataroot of the plain ``--workers 1`` conversion of the three logs."""
-    def build(folder: Path) -> Path:
-        assert convert(synth_split, folder / "out") == 0
-        return folder / "out"
-    return built_once(tmp_path_factory, "executor_reference", build)
+    out = tmp_path_factory.mktemp("executor_reference") / "out"
+    assert convert(synth_split, out) == 0
+    return out
 
 
 @pytest.fixture(scope="session")

@@ -15,7 +15,6 @@ import shutil
 from pathlib import Path
 
 import pytest
-from built_once import built_once
 from e2e_helpers import convert
 
 
@@ -25,24 +24,21 @@ def curved_log(tmp_path_factory) -> Path:
 
     config = SynthConfig(seconds=0.6, image_scale=1 / 16, lidar_azimuth_steps=16, n_parked=0, n_moving=0,
                          n_pedestrians=0, include_stereo=True, layout="curved", map_margin_m=20.0)
-    return built_once(tmp_path_factory, "infos_curved",
-                      lambda d: generate_log(d / "av2", seed=2, config=config))
+    return generate_log(tmp_path_factory.mktemp("infos_curved") / "av2", seed=2, config=config)
 
 
 @pytest.fixture(scope="session")
-def curved_db(curved_log: Path, tmp_path_factory) -> Path:
-    def build(folder: Path) -> Path:
-        convert(curved_log.parent, folder / "db")
-        return folder / "db"
-    return built_once(tmp_path_factory, "infos_curved_db", build)
+def curved_db(curved_log: Path) -> Path:
+    out = curved_log.parents[2] / "db"
+    convert(curved_log.parent, out)
+    return out
 
 
 @pytest.fixture(scope="session")
 def camera_less_db(curved_log: Path, tmp_path_factory) -> Path:
-    def build(base: Path) -> Path:
-        log_dir = base / "av2" / curved_log.parent.name / curved_log.name
-        shutil.copytree(curved_log, log_dir,
-                        ignore=lambda d, names: ["cameras"] if Path(d).name == "sensors" else [])
-        convert(log_dir.parent, base / "db", "--allow-missing-cameras")
-        return base / "db"
-    return built_once(tmp_path_factory, "infos_camera_less", build)
+    base = tmp_path_factory.mktemp("infos_camera_less")
+    log_dir = base / "av2" / curved_log.parent.name / curved_log.name
+    shutil.copytree(curved_log, log_dir,
+                    ignore=lambda d, names: ["cameras"] if Path(d).name == "sensors" else [])
+    convert(log_dir.parent, base / "db", "--allow-missing-cameras")
+    return base / "db"

@@ -15,7 +15,6 @@ import cv2
 import numpy as np
 import pandas as pd
 import pytest
-from built_once import built_once
 
 FIXTURE_SWEEP_NS = 315973157959879000
 # Camera -> phase (ms) to the sweep, as AV2's cameras fire (av2_format.md section 7).
@@ -66,10 +65,9 @@ def add_blank_images(log_dir: Path, calibration: Path,
 @pytest.fixture(scope="session")
 def imaged_log(av2_fixture_log: Path, av2_fixture_calibration: Path, tmp_path_factory) -> tuple[Path, dict]:
     """(log dir, {channel: image timestamps}) of the real fixture log plus calibration and images."""
-    def build(folder: Path) -> tuple[Path, dict]:
-        log_dir = link_log(av2_fixture_log, folder / "val", av2_fixture_log.name, av2_fixture_calibration)
-        return log_dir, add_blank_images(log_dir, av2_fixture_calibration)
-    return built_once(tmp_path_factory, "imaged_av2", build)
+    root = tmp_path_factory.mktemp("imaged_av2") / "val"
+    log_dir = link_log(av2_fixture_log, root, av2_fixture_log.name, av2_fixture_calibration)
+    return log_dir, add_blank_images(log_dir, av2_fixture_calibration)
 
 
 @pytest.fixture(scope="session")
@@ -77,9 +75,7 @@ def native_db(imaged_log, tmp_path_factory) -> Path:
     """The imaged fixture log converted in native mode (symlinked images, every sweep a sample)."""
     from nuav2.convert import ConvertOptions, convert_av2
 
-    def build(out: Path) -> Path:
-        options = ConvertOptions(image_link="symlink", show_progress=False)
-        report = convert_av2(imaged_log[0].parent, out, options)
-        assert report.ok, report.failed
-        return out
-    return built_once(tmp_path_factory, "native_db", build)
+    out = tmp_path_factory.mktemp("native_db")
+    report = convert_av2(imaged_log[0].parent, out, ConvertOptions(image_link="symlink", show_progress=False))
+    assert report.ok, report.failed
+    return out
