@@ -67,7 +67,7 @@ def test_the_photo_behind_the_mask_stops_every_gradient_to_masked_pixels():
         loss.backward()
         assert float(pred.grad[16:].abs().max()) == 0.0 and float(pred.grad[:16].abs().max()) > 0
         plain, _, _ = loss_fn(pred.detach(), target, valid)
-        assert abs(float(loss) - float(plain)) < 0.05  # valid pixels scored as before (but SSIM at the edge)
+        assert abs(loss.item() - plain.item()) < 0.05  # valid pixels scored as before (but SSIM at the edge)
 
 
 def test_depth_loss_zero_when_matching_and_trims_outliers():
@@ -143,7 +143,7 @@ def test_flatness_loss_is_the_mean_smallest_scale_and_pulls_on_that_axis_only():
     scales = torch.tensor([[0.5, 0.02, 0.3], [0.1, 0.2, 0.4]], dtype=torch.float64)
     log_scales = torch.log(scales).requires_grad_()
     loss = flatness_loss(log_scales)
-    assert math.isclose(float(loss), (0.02 + 0.1) / 2, rel_tol=1e-12)
+    assert math.isclose(loss.item(), (0.02 + 0.1) / 2, rel_tol=1e-12)
     loss.backward()
     grad = log_scales.grad.numpy()
     # d/d log s of s/2 is s/2, on each row's smallest axis alone
@@ -154,4 +154,4 @@ def test_flatness_loss_of_no_gaussians_is_zero_not_nan():
     empty = torch.zeros((0, 3), requires_grad=True)
     loss = flatness_loss(empty)
     loss.backward()
-    assert float(loss) == 0.0 and empty.grad is not None and empty.grad.shape == (0, 3)
+    assert loss.item() == 0.0 and empty.grad is not None and empty.grad.shape == (0, 3)
