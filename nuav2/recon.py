@@ -38,6 +38,10 @@ log = logging.getLogger(__name__)
 # "`fast` within the old time per log"). Logs up to ~6 s keep the 600-step floor.
 ITERATIONS_PER_VIEW = 4.0
 FAST_ITERATIONS_PER_VIEW = 1.4
+# ``default`` ends a plateau with a cool-down of a tenth of the steps run: positions to their final
+# learning rate, every other rate to a tenth (15 s `easy` log: +0.34 dB, ground +0.74, for 11 % more
+# CPU; docs/reconstruction.md, "A cool-down after the plateau"). ``fast`` is time-boxed instead.
+DEFAULT_TRAIN = TrainConfig(iterations_per_view=ITERATIONS_PER_VIEW, cooldown_frac=0.1, cooldown_lr_end=0.1)
 
 
 @dataclass(frozen=True)
@@ -64,7 +68,7 @@ class ReconConfig:
     threads: int = 2  # torch's, the seeding's and the numba kernels' threads (same trained scene for any)
     device: str = "auto"
     init: InitConfig = field(default_factory=InitConfig)
-    train: TrainConfig = field(default_factory=lambda: TrainConfig(iterations_per_view=ITERATIONS_PER_VIEW))
+    train: TrainConfig = field(default_factory=lambda: DEFAULT_TRAIN)
     quality: QualityConfig = field(default_factory=QualityConfig)
 
     def __post_init__(self) -> None:
@@ -95,8 +99,8 @@ class ReconConfig:
     @staticmethod
     def default() -> ReconConfig:
         """The benchmark's 'default' budget (= ``ReconConfig()``): 2000 iterations (4 per training image on a
-        longer log; the patience rule stops earlier), <= 100k Gaussians, ~3 min on 2 cores for the default
-        synthetic log. More Gaussians fit the source views better but not the target rig
+        longer log; the patience rule stops earlier, then a cool-down), <= 100k Gaussians, ~3 min on 2
+        cores for the default synthetic log. More Gaussians fit the source views better but not the target rig
         (see docs/reconstruction.md)."""
         return ReconConfig()
 

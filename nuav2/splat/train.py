@@ -88,6 +88,13 @@ class TrainConfig:
     patience: int = 3  # 0: never stop early (validation is still measured and reported)
     min_delta_db: float = 0.1
     min_iterations: int = 0
+    # A run that stops at a plateau before the cap ends with its position LR decayed only part of the way
+    # (the decay is a fraction of the cap). With ``cooldown_frac`` > 0 the plateau starts a cool-down of
+    # that fraction of the steps run (at least ``cooldown_min``): the position and sky LR go on to their
+    # final value and every other LR falls geometrically to ``cooldown_lr_end`` x its own; then it stops.
+    cooldown_frac: float = 0.0
+    cooldown_min: int = 100
+    cooldown_lr_end: float = 1.0
 
     def for_views(self, n_views: int) -> TrainConfig:
         """This config for ``n_views`` training images: ``iterations`` raised to ``iterations_per_view`` x
@@ -227,6 +234,7 @@ class TrainReport:
     densify_stopped_at: int | None = None  # densification ended early here (validation plateau)
     validation: list[list[float]] = field(default_factory=list)  # [step, mean held-out PSNR dB]
     iterations: int | None = None  # the cap this run had (TrainConfig.for_views: it follows the log)
+    cooldown: list[int] | None = None  # [first step, steps] of the cool-down after the plateau
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -258,6 +266,7 @@ class Trainer:
                          for v in spread(list(validation), cfg.eval_views)]
         self.validation: list[list[float]] = []  # [step, PSNR] per measurement
         self.best_val, self.bad_evals, self.plateau = -math.inf, 0, False
+        self.cool: tuple[int, int] | None = None  # (first step, steps) of the cool-down once it started
         self.rng = np.random.default_rng(cfg.seed)
         self.extent = scene_extent(views, cfg.extent_min_m)
         scene_T_city = splat.scene_T_city
@@ -272,13 +281,22 @@ class Trainer:
 
     # ---- schedule ----
     def _set_lr(self) -> None:
-        frac = min(1.0, self.step / max(1, self.cfg.iterations))
-        decay = self.cfg.lr_final_frac ** frac
+        cfg = self.cfg
+        frac = min(1.0, self.step / max(1, cfg.iterations))
+        other = 1.0
+        if self.cool is not None:  # the cool-down: from where the schedule was to its end
+            start, n = self.cool
+            t = min(1.0, (self.step - start) / max(1, n))
+            frac0 = min(1.0, start / max(1, cfg.iterations))
+            frac, other = frac0 + (1.0 - frac0) * t, cfg.cooldown_lr_end ** t
+        decay = cfg.lr_final_frac ** frac
         for g in self.optimizer.param_groups:
             if g["name"].endswith("/means") or g["name"] == "sky":
-                g["lr"] = base_lr(g["name"], self.cfg, self.extent) * decay
+                g["lr"] = base_lr(g["name"], cfg, self.extent) * decay
             elif g["name"].startswith("pose:"):
-                g["lr"] = self.cfg.lr_pose if self.step >= self.cfg.pose_start else 0.0
+                g["lr"] = (cfg.lr_pose if self.step >= cfg.pose_start else 0.0) * other
+            elif other != 1.0:
+                g["lr"] = base_lr(g["name"], cfg, self.extent) * other
 
     def _active_sh(self) -> int:
         return min(self.splat.sh_degree, self.step // max(1, self.cfg.sh_degree_every))
@@ -377,6 +395,11 @@ class Trainer:
     def _check_plateau(self) -> None:
         """Measure validation PSNR when due and apply the patience rule."""
         cfg = self.cfg
+        if self.cool is not None:
+            if self.step >= self.cool[0] + self.cool[1]:
+                self.validation.append([self.step, self.validate()])
+                self.plateau = True
+            return
         if not self.val_data or cfg.eval_every <= 0 or self.step % cfg.eval_every != 0:
             return
         v = self.validate()
@@ -393,6 +416,8 @@ class Trainer:
             if self.strategy.active(self.step):  # more Gaussians stopped helping: refine what there is
                 self.strategy.stopped_at = self.step
                 self.bad_evals = 0
+            elif cfg.cooldown_frac > 0:
+                self.cool = (self.step, max(cfg.cooldown_min, round(cfg.cooldown_frac * self.step)))
             else:
                 self.plateau = True
 
@@ -441,7 +466,8 @@ class Trainer:
         return TrainReport(self.step, time.perf_counter() - t0, float(ema_psnr or 0.0),
                            self.splat.num_gaussians(), list(self.strategy.history), reason != "iterations",
                            list(self.losses), reason, self.strategy.stopped_at,
-                           [list(x) for x in self.validation], self.cfg.iterations)
+                           [list(x) for x in self.validation], self.cfg.iterations,
+                           list(self.cool) if self.cool is not None else None)
 
     # ---- checkpoint / resume ----
     def state(self) -> dict:
@@ -453,7 +479,7 @@ class Trainer:
                 "densify_history": list(self.strategy.history),
                 "densify_stopped_at": self.strategy.stopped_at,
                 "validation": [list(x) for x in self.validation], "best_val": self.best_val,
-                "bad_evals": self.bad_evals, "plateau": self.plateau}
+                "bad_evals": self.bad_evals, "plateau": self.plateau, "cooldown": self.cool}
 
     def save(self, path: Path) -> None:
         buf = io.BytesIO()
@@ -490,3 +516,4 @@ class Trainer:
         self.validation = [list(x) for x in st.get("validation", [])]
         self.best_val = float(st.get("best_val", -math.inf))
         self.bad_evals, self.plateau = int(st.get("bad_evals", 0)), bool(st.get("plateau", False))
+        self.cool = tuple(st["cooldown"]) if st.get("cooldown") else None
