@@ -8,20 +8,19 @@ plateau").
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import pytest
 import torch
+from test_recon_pipeline import TINY_INIT, TINY_LOG
 
 from converters.av2 import read_log
 from nuav2.recon import ReconConfig, split_views
 from nuav2.splat.densify import DensifyConfig
-from nuav2.splat.init import InitConfig, initial_scene, source_views
+from nuav2.splat.init import initial_scene, source_views
 from nuav2.splat.train import CHECKPOINT_FILE, TrainConfig, Trainer, base_lr
-from nuav2.synth import SynthConfig, generate_log
+from nuav2.synth import generate_log
 
-TINY_LOG = SynthConfig(seconds=0.5, image_scale=1 / 16, lidar_azimuth_steps=256, n_parked=2, n_moving=2,
-                       n_pedestrians=0, map_margin_m=30.0)
-TINY_INIT = InitConfig(max_background=20_000, ground_spacing_m=0.4, ground_radius_m=15.0)
 # Every measurement after the first is "no gain" (100 dB asked), densification is over by step 20 and
 # the plateau is not called before full resolution (step 40): the cool-down runs steps 40-59.
 CFG = TrainConfig(iterations=400, pyramid=(0.5, 1.0), pyramid_until=(0.1,),
@@ -66,7 +65,7 @@ def test_a_plateau_starts_a_cool_down_that_ends_the_schedule_and_resumes_exactly
 
 
 def test_without_a_cool_down_the_plateau_stops_at_once(tiny_scene):
-    rep = trainer(tiny_scene, TrainConfig(**{**CFG.__dict__, "cooldown_frac": 0.0})).run(progress=False)
+    rep = trainer(tiny_scene, replace(CFG, cooldown_frac=0.0)).run(progress=False)
     assert rep.stop_reason == "plateau" and rep.cooldown is None and rep.steps == 40
 
 

@@ -282,9 +282,9 @@ class Trainer:
     # ---- schedule ----
     def _set_lr(self) -> None:
         cfg = self.cfg
-        frac = min(1.0, self.step / max(1, cfg.iterations))
-        other = 1.0
-        if self.cool is not None:  # the cool-down: from where the schedule was to its end
+        if self.cool is None:
+            frac, other = min(1.0, self.step / max(1, cfg.iterations)), 1.0
+        else:  # the cool-down: from where the schedule was to its end
             start, n = self.cool
             t = min(1.0, (self.step - start) / max(1, n))
             frac0 = min(1.0, start / max(1, cfg.iterations))
