@@ -69,6 +69,19 @@ def test_without_a_cool_down_the_plateau_stops_at_once(tiny_scene):
     assert rep.stop_reason == "plateau" and rep.cooldown is None and rep.steps == 40
 
 
+def test_the_plain_extra_steps_control_keeps_every_rate_where_the_plateau_left_it(tiny_scene):
+    cfg = replace(CFG, cooldown_lr_end=1.0, cooldown_positions=False)
+    t = trainer(tiny_scene, cfg)
+    rep = t.run(progress=False)
+    assert rep.cooldown == [40, 20] and rep.steps == 60
+    t._set_lr()
+    lrs = {g["name"]: g["lr"] for g in t.optimizer.param_groups}
+    at_plateau = CFG.lr_final_frac ** (40 / CFG.iterations)  # the decay step 40 of the 400-step cap reached
+    assert lrs["background/means"] == pytest.approx(base_lr("background/means", cfg, t.extent) * at_plateau)
+    assert lrs["sky"] == pytest.approx(CFG.lr_sky * at_plateau)
+    assert lrs["background/opacity_logits"] == pytest.approx(CFG.lr_opacity)
+
+
 def test_the_default_preset_cools_down_and_fast_is_time_boxed_instead():
     assert ReconConfig.default().train.cooldown_frac > 0
     assert ReconConfig.fast().train.cooldown_frac == 0

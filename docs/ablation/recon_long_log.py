@@ -71,6 +71,9 @@ def main() -> None:
                     help="cool-down after a plateau, a fraction of the steps run (0: off; default: preset)")
     ap.add_argument("--cooldown-lr-end", type=float, default=None,
                     help="the other learning rates' factor at the cool-down's end (default: the preset's)")
+    ap.add_argument("--cooldown-frozen-positions", action="store_true",
+                    help="the cool-down keeps the position and sky LR where the plateau left them (with "
+                         "--cooldown-lr-end 1: plain extra steps, the control)")
     ap.add_argument("--scale", type=float, default=DEFAULT_TARGET_SCALE, help="nuScenes rig scale scored")
     args = ap.parse_args()
     scene, world = read_log(args.log_dir), load_world(args.log_dir)
@@ -86,6 +89,8 @@ def main() -> None:
         cfg = replace(cfg, train=replace(cfg.train, cooldown_frac=args.cooldown_frac))
     if args.cooldown_lr_end is not None:
         cfg = replace(cfg, train=replace(cfg.train, cooldown_lr_end=args.cooldown_lr_end))
+    if args.cooldown_frozen_positions:
+        cfg = replace(cfg, train=replace(cfg.train, cooldown_positions=False))
     if args.iterations_per_view is not None:
         cfg = replace(cfg, train=replace(cfg.train, iterations_per_view=args.iterations_per_view))
     if args.half_res_iterations is not None:  # the coarse stage as a count, not a fraction of the cap
@@ -106,6 +111,7 @@ def main() -> None:
         "iterations_per_view": getattr(cfg.train, "iterations_per_view", None),
         "lambda_flat": getattr(cfg.train, "lambda_flat", None),
         "cooldown_frac": cfg.train.cooldown_frac, "cooldown_lr_end": cfg.train.cooldown_lr_end,
+        "cooldown_positions": cfg.train.cooldown_positions, "cooldown": train.get("cooldown"),
         "structure_merge_levels": cfg.init.budget.structure_merge_levels if cfg.init.budget else None,
         "iterations_cap": train.get("iterations"), "steps": train["steps"],
         "stop_reason": train["stop_reason"], "densify_stopped_at": train["densify_stopped_at"],

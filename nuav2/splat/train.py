@@ -95,6 +95,9 @@ class TrainConfig:
     cooldown_frac: float = 0.0
     cooldown_min: int = 100
     cooldown_lr_end: float = 1.0
+    # False: the position and sky LR stay where the plateau left them (with ``cooldown_lr_end`` = 1 the
+    # cool-down is then plain extra steps at unchanged rates, the control of docs/reconstruction.md).
+    cooldown_positions: bool = True
 
     def for_views(self, n_views: int) -> TrainConfig:
         """This config for ``n_views`` training images: ``iterations`` raised to ``iterations_per_view`` x
@@ -288,7 +291,8 @@ class Trainer:
             start, n = self.cool
             t = min(1.0, (self.step - start) / max(1, n))
             frac0 = min(1.0, start / max(1, cfg.iterations))
-            frac, other = frac0 + (1.0 - frac0) * t, cfg.cooldown_lr_end ** t
+            frac = frac0 + (1.0 - frac0) * t if cfg.cooldown_positions else frac0
+            other = cfg.cooldown_lr_end ** t
         decay = cfg.lr_final_frac ** frac
         for g in self.optimizer.param_groups:
             if g["name"].endswith("/means") or g["name"] == "sky":
