@@ -17,21 +17,14 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import resource
-import time
 from dataclasses import replace
 from pathlib import Path
 
 from converters.av2 import read_log
 from nuav2.bench.recon import SCENES, heldout_psnr, target_rig_scores
+from nuav2.bench.timing import Stopwatch
 from nuav2.recon import ReconConfig, reconstruct
 from nuav2.synth import SynthConfig, generate_log, load_world
-
-
-def cpu_s() -> float:
-    ru = resource.getrusage(resource.RUSAGE_SELF)
-    return ru.ru_utime + ru.ru_stime
 
 
 def scene_log(work: Path, name: str, preset: str, seed: int) -> Path:
@@ -50,9 +43,9 @@ def run(log: Path, scene_name: str, budget: int | None, times: int, train_seed: 
     if budget is not None:
         fixed = replace(cfg.init.budget, min_budget=budget, max_budget=budget)
         cfg = replace(cfg, init=replace(cfg.init, budget=fixed))
-    wall0, cpu0 = time.perf_counter(), cpu_s()
-    splat = reconstruct(scene, cfg, progress=False)
-    wall, cpu = time.perf_counter() - wall0, cpu_s() - cpu0
+    sw = Stopwatch()
+    with sw:
+        splat = reconstruct(scene, cfg, progress=False)
     train, init = splat.info["train"], splat.info.get("init_stats") or {}
     target = target_rig_scores(splat, scene, world, n_times=times)
     held = heldout_psnr(splat, scene)
@@ -60,7 +53,8 @@ def run(log: Path, scene_name: str, budget: int | None, times: int, train_seed: 
             "budget": "own" if budget is None else budget,
             "scene_budget": init.get("gaussian_budget"), "gaussians": splat.num_gaussians(),
             "steps": train["steps"], "stop_reason": train["stop_reason"], "cooldown": train.get("cooldown"),
-            "recon_wall_s": round(wall, 1), "recon_cpu_s": round(cpu, 1), "load_1min": os.getloadavg()[0],
+            "recon_wall_s": round(sw.wall_s[0], 1), "recon_cpu_s": round(sw.cpu_s[0], 1),
+            "load_1min": sw.load[0],
             "psnr_db": round(target["psnr_db"], 3), "ssim": round(target["ssim"], 4),
             **{f"psnr_{k}_db": round(v, 3) for k, v in target["regions"]["psnr_db"].items() if v is not None},
             "heldout_psnr_db": None if held is None else round(held["psnr_db"], 3)}

@@ -1,7 +1,7 @@
 """One reconstruction of a saved synthetic log (`--preset fast` or `default`), scored in the nuScenes rig.
 
 Prints one JSON line: iterations run and why they stopped, Gaussians, seeding and total wall and CPU
-seconds (CPU of all threads, from getrusage), source-image files decoded, and target-rig PSNR per
+seconds (CPU of all threads: the process's CPU time), source-image files decoded, and target-rig PSNR per
 region over 12 sample times against the world's exact render. Run it once per checkout
 (``git worktree add DIR COMMIT``) on the same log, one after another on a quiet machine, to compare
 checkouts; a fresh checkout's first run also compiles its kernels, so run it twice there and keep the
@@ -18,14 +18,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import resource
-import time
 from dataclasses import replace
 from pathlib import Path
 
 from converters.av2 import read_log
 from nuav2.bench.recon import DEFAULT_TARGET_SCALE, target_rig_scores
+from nuav2.bench.timing import Stopwatch
 from nuav2.recon import ReconConfig, default_channels, reconstruct
 from nuav2.splat.views import source_views
 from nuav2.synth import load_world
@@ -44,11 +42,6 @@ def count_source_decodes() -> list[int]:
 
     views_module.load_image_u8 = counted
     return count
-
-
-def cpu_s() -> float:
-    ru = resource.getrusage(resource.RUSAGE_SELF)
-    return ru.ru_utime + ru.ru_stime
 
 
 def main() -> None:
@@ -99,9 +92,9 @@ def main() -> None:
         cap = cfg.train.for_views(n_train).iterations
         cfg = replace(cfg, train=replace(cfg.train, pyramid_until=(args.half_res_iterations / cap,)))
     decodes = count_source_decodes()
-    wall0, cpu0 = time.perf_counter(), cpu_s()
-    splat = reconstruct(scene, cfg, progress=False)
-    wall, cpu = time.perf_counter() - wall0, cpu_s() - cpu0
+    sw = Stopwatch()
+    with sw:
+        splat = reconstruct(scene, cfg, progress=False)
     train = splat.info["train"]
     target = target_rig_scores(splat, scene, world, scale=args.scale, n_times=args.times)
     regions = target["regions"]["psnr_db"]
@@ -118,7 +111,7 @@ def main() -> None:
         "last_heldout_psnr_db": train["validation"][-1][1] if train["validation"] else None,
         "gaussians": splat.num_gaussians(), "seeding_s": round(splat.info["init_seconds"], 1),
         "source_decodes": decodes[0],
-        "recon_wall_s": round(wall, 1), "recon_cpu_s": round(cpu, 1), "load_1min": os.getloadavg()[0],
+        "recon_wall_s": round(sw.wall_s[0], 1), "recon_cpu_s": round(sw.cpu_s[0], 1), "load_1min": sw.load[0],
         "psnr_db": round(target["psnr_db"], 3), "ssim": round(target["ssim"], 4),
         **{f"psnr_{k}_db": round(v, 3) for k, v in regions.items() if v is not None}}))
 
