@@ -81,6 +81,14 @@ class ReconConfig:
         if not 0 <= self.sh_degree <= 3:
             raise ValueError(f"ReconConfig.sh_degree must be in 0..3, got {self.sh_degree}")
         check_device_name(self.device)
+        # reconstruct() hands its own seed and threads to the trainer; a different value set on
+        # ``train`` would be silently replaced, so it is refused here instead.
+        base = TrainConfig()
+        for name in ("seed", "threads"):
+            mine, theirs = getattr(self, name), getattr(self.train, name)
+            if theirs not in (getattr(base, name), mine):
+                raise ValueError(f"ReconConfig.train.{name}={theirs} is not used (reconstruct() trains with "
+                                 f"ReconConfig.{name}={mine}); set ReconConfig.{name} instead")
 
     @staticmethod
     def fast() -> ReconConfig:

@@ -11,6 +11,10 @@ from pathlib import Path
 
 import pytest
 
+# Plugin modules that some test files also import by name: rewritten like the tests themselves, and no
+# "already imported so cannot be rewritten" warning when the import comes first.
+pytest.register_assert_rewrite("e2e_support", "test_writer_support")
+
 REPO = Path(__file__).resolve().parent.parent
 SHARED_AV2 = REPO.parent / "shared" / "fixtures" / "av2"
 FIXTURE_LOG_ID = "adcf7d18-0510-35b0-a2fa-b4cea13a6d76"

@@ -276,6 +276,18 @@ def test_split_views_holds_out_every_kth(tiny_scene):
     assert split_views(views, 0) == (views, [])
 
 
+def test_a_seed_or_thread_count_set_on_the_trainer_config_is_refused_not_ignored():
+    """reconstruct() trains with ReconConfig.seed / .threads; the same knobs on ``train`` would be
+    overwritten."""
+    with pytest.raises(ValueError, match=r"ReconConfig.train.seed=3 is not used .*set ReconConfig.seed"):
+        ReconConfig(train=TrainConfig(seed=3))
+    with pytest.raises(ValueError, match=r"ReconConfig.train.threads=1 is not used"):
+        ReconConfig(threads=2, train=TrainConfig(threads=1))
+    agreed = ReconConfig(seed=3, threads=1, train=TrainConfig(seed=3, threads=1))  # the same: nothing lost
+    assert agreed.seed == agreed.train.seed == 3
+    assert ReconConfig(seed=5).train.seed == 0  # the trainer default stays; reconstruct() hands it 5
+
+
 def test_render_source_through_the_real_writer_and_devkit(trained, tiny_scene, tiny_world, tmp_path):
     """The provider plugged into the nuScenes writer: the devkit loads the database, and its images,
     re-rendered by the synthetic world at the poses read back from the tables, score like the

@@ -7,7 +7,7 @@ min = max = that number), the four runs interleaved in one process (own budgets 
 crossed runs need them), each scored in the nuScenes rig at 1/8 against the world's exact render and
 on held-out source images (every 5th per camera). One JSON line per run:
 
-    python docs/ablation/budget_crossover.py WORKDIR [--train-seed S] >> docs/ablation/budget_crossover.jsonl
+    python docs/ablation/budget_crossover.py WORKDIR [--recon-seed S] >> docs/ablation/budget_crossover.jsonl
 
 WORKDIR keeps the two generated logs (``bench recon --scene empty,busy``'s worlds, `easy` seed 0), so a
 rerun reuses them.
@@ -36,10 +36,10 @@ def scene_log(work: Path, name: str, preset: str, seed: int) -> Path:
     return generate_log(root, seed=seed, config=SynthConfig.for_preset(preset, **SCENES[name]))
 
 
-def run(log: Path, scene_name: str, budget: int | None, times: int, train_seed: int) -> dict:
+def run(log: Path, scene_name: str, budget: int | None, times: int, recon_seed: int) -> dict:
     """One `default` reconstruction at ``budget`` Gaussians (None: the scene's own budget), scored."""
     scene, world = read_log(log), load_world(log)
-    cfg = replace(ReconConfig.default(), holdout_every=5, seed=train_seed)
+    cfg = replace(ReconConfig.default(), holdout_every=5, seed=recon_seed)
     if budget is not None:
         fixed = replace(cfg.init.budget, min_budget=budget, max_budget=budget)
         cfg = replace(cfg, init=replace(cfg.init, budget=fixed))
@@ -49,7 +49,7 @@ def run(log: Path, scene_name: str, budget: int | None, times: int, train_seed: 
     train, init = splat.info["train"], splat.info.get("init_stats") or {}
     target = target_rig_scores(splat, scene, world, n_times=times)
     held = heldout_psnr(splat, scene)
-    return {"scene": scene_name, "log": scene.log_id, "train_seed": train_seed,
+    return {"scene": scene_name, "log": scene.log_id, "recon_seed": recon_seed,
             "budget": "own" if budget is None else budget,
             "scene_budget": init.get("gaussian_budget"), "gaussians": splat.num_gaussians(),
             "steps": train["steps"], "stop_reason": train["stop_reason"], "cooldown": train.get("cooldown"),
@@ -65,17 +65,17 @@ def main() -> None:
     ap.add_argument("work", type=Path, help="folder for the two synthetic logs (reused when present)")
     ap.add_argument("--preset", default="easy", help="synthetic realism preset")
     ap.add_argument("--seed", type=int, default=0, help="synthetic world seed")
-    ap.add_argument("--train-seed", type=int, default=0, help="the reconstruction's seed (ReconConfig.seed)")
+    ap.add_argument("--recon-seed", type=int, default=0, help="the reconstruction's seed (ReconConfig.seed)")
     ap.add_argument("--times", type=int, default=6, help="sample times scored in the nuScenes rig")
     args = ap.parse_args()
     logs = {name: scene_log(args.work, name, args.preset, args.seed) for name in ("empty", "busy")}
     own: dict[str, int] = {}
     for name in ("empty", "busy"):
-        row = run(logs[name], name, None, args.times, args.train_seed)
+        row = run(logs[name], name, None, args.times, args.recon_seed)
         own[name] = int(row["scene_budget"])
         print(json.dumps(row), flush=True)
     for name, other in (("empty", "busy"), ("busy", "empty")):
-        print(json.dumps(run(logs[name], name, own[other], args.times, args.train_seed)), flush=True)
+        print(json.dumps(run(logs[name], name, own[other], args.times, args.recon_seed)), flush=True)
 
 
 if __name__ == "__main__":
