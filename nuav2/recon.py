@@ -83,10 +83,9 @@ class ReconConfig:
         check_device_name(self.device)
         # reconstruct() hands its own seed and threads to the trainer; a different value set on
         # ``train`` would be silently replaced, so it is refused here instead.
-        base = TrainConfig()
         for name in ("seed", "threads"):
             mine, theirs = getattr(self, name), getattr(self.train, name)
-            if theirs not in (getattr(base, name), mine):
+            if theirs not in (getattr(TrainConfig, name), mine):  # the class attribute is the field's default
                 raise ValueError(f"ReconConfig.train.{name}={theirs} is not used (reconstruct() trains with "
                                  f"ReconConfig.{name}={mine}); set ReconConfig.{name} instead")
 

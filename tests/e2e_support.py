@@ -66,11 +66,11 @@ def warp_db(synth_log: Path, tmp_path_factory) -> Path:
 @pytest.fixture(scope="session")
 def tiny_synth_log(tmp_path_factory) -> Path:
     """Small enough for a CI-sized reconstruction (the test_recon_pipeline log)."""
-    from nuav2.synth import SynthConfig, generate_log
+    from test_recon_pipeline import TINY_LOG
 
-    config = SynthConfig(seconds=0.5, image_scale=1 / 16, lidar_azimuth_steps=256, n_parked=2, n_moving=2,
-                         n_pedestrians=0, map_margin_m=30.0)
-    return generate_log(tmp_path_factory.mktemp("e2e_tiny_synth"), seed=3, config=config)
+    from nuav2.synth import generate_log
+
+    return generate_log(tmp_path_factory.mktemp("e2e_tiny_synth"), seed=3, config=TINY_LOG)
 
 
 @pytest.fixture(scope="session")
