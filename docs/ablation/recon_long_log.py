@@ -71,21 +71,14 @@ def main() -> None:
     args = ap.parse_args()
     scene, world = read_log(args.log_dir), load_world(args.log_dir)
     cfg = replace(ReconConfig.preset(args.preset), device=args.device)
-    if args.patience is not None:
-        cfg = replace(cfg, train=replace(cfg.train, patience=args.patience))
-    if args.lambda_flat is not None:
-        cfg = replace(cfg, train=replace(cfg.train, lambda_flat=args.lambda_flat))
+    train_flags = {"patience": args.patience, "lambda_flat": args.lambda_flat,
+                   "cooldown_frac": args.cooldown_frac, "cooldown_lr_end": args.cooldown_lr_end,
+                   "iterations_per_view": args.iterations_per_view,
+                   "cooldown_positions": False if args.cooldown_frozen_positions else None}
+    cfg = replace(cfg, train=replace(cfg.train, **{k: v for k, v in train_flags.items() if v is not None}))
     if args.structure_merge_levels is not None:
         budget = replace(cfg.init.budget, structure_merge_levels=args.structure_merge_levels)
         cfg = replace(cfg, init=replace(cfg.init, budget=budget))
-    if args.cooldown_frac is not None:
-        cfg = replace(cfg, train=replace(cfg.train, cooldown_frac=args.cooldown_frac))
-    if args.cooldown_lr_end is not None:
-        cfg = replace(cfg, train=replace(cfg.train, cooldown_lr_end=args.cooldown_lr_end))
-    if args.cooldown_frozen_positions:
-        cfg = replace(cfg, train=replace(cfg.train, cooldown_positions=False))
-    if args.iterations_per_view is not None:
-        cfg = replace(cfg, train=replace(cfg.train, iterations_per_view=args.iterations_per_view))
     if args.half_res_iterations is not None:  # the coarse stage as a count, not a fraction of the cap
         views = source_views(scene, cfg.scale_for(scene), channels=default_channels(scene))
         n_train = len(views) // cfg.frame_stride
