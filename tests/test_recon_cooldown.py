@@ -18,7 +18,8 @@ from converters.av2 import read_log
 from nuav2.recon import ReconConfig, split_views
 from nuav2.splat.densify import DensifyConfig
 from nuav2.splat.init import initial_scene, source_views
-from nuav2.splat.train import CHECKPOINT_FILE, TrainConfig, Trainer, base_lr
+from nuav2.splat.optimizer import base_lr
+from nuav2.splat.train import CHECKPOINT_FILE, TrainConfig, Trainer
 from nuav2.synth import generate_log
 
 # Every measurement after the first is "no gain" (100 dB asked), densification is over by step 20 and

@@ -84,7 +84,8 @@ def test_pose_corrections_interpolate_and_bake_into_the_track():
 def test_learned_corrections_pull_jittered_boxes_back():
     """A textured object rendered at its true poses; training only the corrections, starting from jittered
     poses, brings the boxes back towards the truth (smoothness prior included)."""
-    from nuav2.splat.train import TrainConfig, pose_prior
+    from nuav2.splat.pose_prior import pose_prior
+    from nuav2.splat.train import TrainConfig
 
     rng = np.random.default_rng(3)
     K = np.array([[60.0, 0.0, 31.5], [0.0, 60.0, 23.5], [0.0, 0.0, 1.0]])

@@ -27,7 +27,9 @@ from nuav2.splat._photometric import fused_photometric_loss
 from nuav2.splat.densify import DensifyConfig, DensifyStrategy
 from nuav2.splat.device import to_cpu
 from nuav2.splat.losses import depth_loss, flatness_loss, photo_behind_mask, photometric_loss, psnr, sky_loss
-from nuav2.splat.scene_model import GaussianSet, SplatScene, TrackPoses
+from nuav2.splat.optimizer import base_lr, build_optimizer, named_sets, step_groups_with_grads, store_sets
+from nuav2.splat.pose_prior import pose_prior, track_tensors
+from nuav2.splat.scene_model import SplatScene
 from nuav2.splat.train_views import ViewData, lidar_depth_by_view
 from nuav2.splat.views import SourceView
 
@@ -112,31 +114,6 @@ class TrainConfig:
         return replace(self, iterations=n, densify=replace(self.densify, stop=stop))
 
 
-def pose_prior(track: TrackPoses, lambda_size: float, lambda_smooth: float,
-               base: tuple[torch.Tensor, torch.Tensor] | None = None) -> torch.Tensor:
-    """Prior of a track's learned box-pose corrections: small (``lambda_size`` x mean squared correction)
-    and a smooth corrected path (``lambda_smooth`` x mean squared second difference of the corrected
-    centres and headings between annotated frames): labels jitter from frame to frame, actors do not.
-    ``base``: the track's (poses, unwrapped headings) as tensors, when the caller keeps them."""
-    d = track.pose_delta
-    T, yaw0 = base if base is not None else track_tensors(track)
-    centre = T[:, :3, 3] + torch.einsum("nij,nj->ni", T[:, :3, :3], d[:, :3])
-    total = lambda_size * d.pow(2).sum(-1).mean()
-    if len(d) >= 3:
-        path = torch.cat([centre, (yaw0 + d[:, 3])[:, None]], 1)
-        total = total + lambda_smooth * (path[2:] - 2 * path[1:-1] + path[:-2]).pow(2).sum(-1).mean()
-    return total
-
-
-def track_tensors(track: TrackPoses) -> tuple[torch.Tensor, torch.Tensor]:
-    """(scene_T_box (T, 4, 4), unwrapped heading (T,)) of a track as float32 tensors, on the device
-    of its learned corrections."""
-    dev = track.pose_delta.device if track.pose_delta is not None else torch.device("cpu")
-    yaw = np.unwrap(np.arctan2(track.scene_T_box[:, 1, 0], track.scene_T_box[:, 0, 0]))
-    T = torch.as_tensor(track.scene_T_box, dtype=torch.float32, device=dev)
-    return T, torch.as_tensor(yaw, dtype=torch.float32, device=dev)
-
-
 def spread(items: list, n: int) -> list:
     """At most ``n`` items, evenly spaced over the list (all when n <= 0 or the list is short)."""
     if n <= 0 or len(items) <= n:
@@ -148,72 +125,6 @@ def scene_extent(views: list[SourceView], minimum: float) -> float:
     """Radius of the camera centres around their mean (x1.1), at least ``minimum`` metres."""
     c = np.array([v.city_T_cam[:3, 3] for v in views]) if views else np.zeros((1, 3))
     return max(minimum, 1.1 * float(np.linalg.norm(c - c.mean(0), axis=1).max(initial=0.0)))
-
-
-def named_sets(splat: SplatScene) -> dict[str, GaussianSet]:
-    out = {"background": splat.background}
-    for o in splat.objects:
-        out[f"obj:{o.track.key}"] = o.gaussians
-    return out
-
-
-def store_sets(splat: SplatScene, sets: dict[str, GaussianSet]) -> None:
-    splat.background = sets["background"]
-    for o in splat.objects:
-        o.gaussians = sets[f"obj:{o.track.key}"]
-
-
-def base_lr(group_name: str, cfg: TrainConfig, extent: float) -> float:
-    """Initial learning rate of an optimizer group named ``<set>/<param>`` or ``sky``."""
-    if group_name == "sky":
-        return cfg.lr_sky
-    if group_name.startswith("pose:"):
-        return cfg.lr_pose
-    lrs = {"means": cfg.lr_means * extent, "quats": cfg.lr_quats, "log_scales": cfg.lr_scales,
-           "opacity_logits": cfg.lr_opacity, "sh": cfg.lr_sh_dc}
-    return lrs[group_name.rsplit("/", 1)[1]]
-
-
-def build_optimizer(splat: SplatScene, cfg: TrainConfig, extent: float) -> torch.optim.Adam:
-    """One Adam param group per (set, parameter) plus the sky, in a fixed order (checkpointable)."""
-    groups = []
-    for name, g in named_sets(splat).items():
-        g.requires_grad_(True)
-        for p in ("means", "quats", "log_scales", "opacity_logits", "sh"):
-            groups.append({"params": [getattr(g, p)], "lr": base_lr(f"{name}/{p}", cfg, extent),
-                           "name": f"{name}/{p}"})
-    splat.sky.texture.requires_grad_(True)
-    groups.append({"params": [splat.sky.texture], "lr": cfg.lr_sky, "name": "sky"})
-    for o in splat.objects:
-        if o.track.pose_delta is not None:
-            o.track.pose_delta.requires_grad_(True)
-            groups.append({"params": [o.track.pose_delta], "lr": cfg.lr_pose,
-                           "name": f"pose:{o.track.key}"})
-    return torch.optim.Adam(groups, lr=1e-3, eps=1e-15, fused=True)
-
-
-def step_groups_with_grads(optimizer: torch.optim.Optimizer) -> None:
-    """One optimizer step over the groups that have a gradient, then their gradients cleared.
-
-    A 15 s log has ~460 groups (five per moving object) and a step gives ~30 a gradient (the
-    background, the sky, the present objects): torch would skip the others one by one, which costs
-    more than the fused update of those. Same update as ``optimizer.step()``: a group without
-    gradients is left alone either way. Non-finite gradient entries are zeroed first (one bad pixel
-    must not poison Adam's moments)."""
-    every = optimizer.param_groups
-    with_grads = [g for g in every if any(p.grad is not None for p in g["params"])]
-    for g in with_grads:
-        for p in g["params"]:
-            if p.grad is not None:
-                torch.nan_to_num_(p.grad, nan=0.0, posinf=0.0, neginf=0.0)
-    optimizer.param_groups = with_grads
-    try:
-        optimizer.step()
-    finally:
-        optimizer.param_groups = every
-    for g in with_grads:
-        for p in g["params"]:
-            p.grad = None
 
 
 def pyramid_level(cfg: TrainConfig, step: int) -> float:
