@@ -22,6 +22,7 @@ from pathlib import Path
 import nuav2.commands
 from nuav2.cli_types import OneLineParser
 
+log = logging.getLogger(__name__)
 _GROUPS: dict[str, argparse._SubParsersAction] = {}
 _TOP: argparse._SubParsersAction | None = None
 EXIT_BAD_INPUT = 2
@@ -58,6 +59,22 @@ def require_database(dataroot: str | Path, version: str) -> Path:
         raise UsageError(f"--version {version}: {folder} holds no nuScenes tables "
                          f"(versions in {root}: {', '.join(versions_in(root)) or 'none'})")
     return folder
+
+
+def resolve_version(dataroot: str | Path, version: str | None) -> str:
+    """``--version`` as given, else the only table folder under DATAROOT (the common case: one
+    conversion per dataroot); none or several is a UsageError that lists what is there."""
+    if version is not None:
+        return version
+    root = Path(dataroot)
+    if not root.is_dir():
+        raise UsageError(f"{root}: dataroot not found")
+    found = versions_in(root)
+    if len(found) != 1:
+        what = f"several ({', '.join(found)})" if found else "none (no folder with a scene.json)"
+        raise UsageError(f"--version: give the table folder; {root} holds {what}")
+    log.info("--version %s (the only table folder in %s)", found[0], root)
+    return found[0]
 
 
 def versions_in(root: Path) -> list[str]:

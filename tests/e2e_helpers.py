@@ -76,3 +76,19 @@ def table(db: Path, name: str) -> list[dict]:
 
 def logs_meta(db: Path) -> list[dict]:
     return json.loads((db / VERSION / "nuav2_logs.json").read_text())
+
+
+def copy_db(db: Path, dest: Path) -> Path:
+    """A database of its own: the tables copied (tests damage or rewrite them), the data linked."""
+    dest.mkdir(parents=True)
+    for entry in db.iterdir():
+        if entry.name == VERSION:
+            shutil.copytree(entry, dest / VERSION)
+        else:
+            (dest / entry.name).symlink_to(entry.resolve())
+    return dest
+
+
+def first_sample_token(db: Path) -> str:
+    """The token of the first record in ``db``'s sample table."""
+    return json.loads((db / VERSION / "sample.json").read_text())[0]["token"]

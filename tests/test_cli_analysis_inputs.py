@@ -8,13 +8,12 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
-from e2e_helpers import VERSION, cli, cli_bound_by_modes
+from e2e_helpers import VERSION, cli, cli_bound_by_modes, copy_db, first_sample_token
 
 from nuav2.cli import main
 from nuav2.evaluate import MAP_CLASSES
@@ -48,23 +47,8 @@ def _refused_while_parsing(argv: list[str], capsys: pytest.CaptureFixture[str]) 
     return _one_line(capsys.readouterr().err)
 
 
-def _copy_db(db: Path, dest: Path) -> Path:
-    """A database of its own: the tables copied (tests damage or rewrite them), the data linked."""
-    dest.mkdir(parents=True)
-    for entry in db.iterdir():
-        if entry.name == VERSION:
-            shutil.copytree(entry, dest / VERSION)
-        else:
-            (dest / entry.name).symlink_to(entry.resolve())
-    return dest
-
-
 def _tables(db: Path) -> dict[str, bytes]:
     return {p.name: p.read_bytes() for p in sorted((db / VERSION).iterdir())}
-
-
-def _sample_token(db: Path) -> str:
-    return json.loads((db / VERSION / "sample.json").read_text())[0]["token"]
 
 
 def _results(path: Path, token: str, vectors: list) -> Path:
@@ -77,7 +61,7 @@ def _results(path: Path, token: str, vectors: list) -> Path:
 
 
 def test_split_lists_naming_no_scene_are_refused_and_nothing_is_written(native_synth_db, tmp_path):
-    db = _copy_db(native_synth_db, tmp_path / "db")
+    db = copy_db(native_synth_db, tmp_path / "db")
     lists = tmp_path / "lists.json"
     lists.write_text(json.dumps({"train": ["scene-nope"], "val": [], "test": []}))
     before = _tables(db)
@@ -87,7 +71,7 @@ def test_split_lists_naming_no_scene_are_refused_and_nothing_is_written(native_s
 
 
 def test_split_lists_with_an_empty_train_list_says_so(native_synth_db, tmp_path, caplog):
-    db = _copy_db(native_synth_db, tmp_path / "db")
+    db = copy_db(native_synth_db, tmp_path / "db")
     (scene,) = [s["name"] for s in json.loads((db / VERSION / "scene.json").read_text())]
     lists = tmp_path / "lists.json"
     lists.write_text(json.dumps({"train": [], "val": [scene], "test": []}))
@@ -99,7 +83,7 @@ def test_split_lists_with_an_empty_train_list_says_so(native_synth_db, tmp_path,
 
 def test_split_lists_with_some_unknown_entries_still_split_and_say_so(native_synth_db, tmp_path, caplog):
     """Published lists name more logs than one database holds (the transfer benchmark's case)."""
-    db = _copy_db(native_synth_db, tmp_path / "db")
+    db = copy_db(native_synth_db, tmp_path / "db")
     (scene,) = [s["name"] for s in json.loads((db / VERSION / "scene.json").read_text())]
     lists = tmp_path / "lists.json"
     lists.write_text(json.dumps({"train": [scene, "scene-nope"], "val": [], "test": []}))
@@ -114,7 +98,7 @@ def test_split_lists_with_some_unknown_entries_still_split_and_say_so(native_syn
 
 
 def test_split_lists_with_a_bad_key_name_the_file(native_synth_db, tmp_path):
-    db = _copy_db(native_synth_db, tmp_path / "db")
+    db = copy_db(native_synth_db, tmp_path / "db")
     lists = tmp_path / "lists.json"
     lists.write_text(json.dumps({"holdout": ["scene-0001"]}))
     msg = _refused("split", db, "--version", VERSION, "--lists", lists)
@@ -182,7 +166,7 @@ def test_viz_draws_at_the_smallest_tile_height_into_an_upper_case_jpeg(native_sy
     import cv2
 
     out = tmp_path / "small.JPEG"
-    token = _sample_token(native_synth_db)
+    token = first_sample_token(native_synth_db)
     code, _, err = cli("viz", native_synth_db, "--version", VERSION, "--sample", token, "--out", out,
                        "--tile-height", "16")
     assert code == 0, err
@@ -194,7 +178,7 @@ def test_viz_draws_at_the_smallest_tile_height_into_an_upper_case_jpeg(native_sy
 
 
 def test_eval_refuses_an_unknown_class_listing_the_known_ones(native_synth_db, tmp_path):
-    pred = _results(tmp_path / "pred.json", _sample_token(native_synth_db), [GOOD_VECTOR])
+    pred = _results(tmp_path / "pred.json", first_sample_token(native_synth_db), [GOOD_VECTOR])
     msg = _refused("eval", pred, "--dataroot", native_synth_db, "--version", VERSION,
                    "--classes", "divider", "foo")
     assert "--classes" in msg and "foo" in msg and all(c in msg for c in MAP_CLASSES)
@@ -231,7 +215,7 @@ BAD_RECORDS = {
 @pytest.mark.parametrize("command", ["eval", "viz"])
 @pytest.mark.parametrize("field", list(BAD_RECORDS))
 def test_a_malformed_prediction_names_file_sample_vector_and_field(native_synth_db, tmp_path, command, field):
-    token = _sample_token(native_synth_db)
+    token = first_sample_token(native_synth_db)
     pred = _results(tmp_path / "pred.json", token, [GOOD_VECTOR, BAD_RECORDS[field]])
     if command == "eval":
         msg = _refused("eval", pred, "--dataroot", native_synth_db, "--version", VERSION)
@@ -244,7 +228,7 @@ def test_a_malformed_prediction_names_file_sample_vector_and_field(native_synth_
 
 @pytest.mark.parametrize("command", ["eval", "viz"])
 def test_a_prediction_file_that_is_not_utf8_is_named(native_synth_db, tmp_path, command):
-    token = _sample_token(native_synth_db)
+    token = first_sample_token(native_synth_db)
     pred = tmp_path / "latin1.json"
     pred.write_bytes(json.dumps({"results": {token: []}, "meta": {"by": "_"}}).replace("_", "\xe9")
                      .encode("latin-1"))
@@ -289,7 +273,7 @@ def _command(name: str, db: Path, tmp_path: Path) -> list:
 @pytest.mark.parametrize("damage", list(DAMAGE))
 @pytest.mark.parametrize("command", ["split", "infos", "eval", "viz"])
 def test_a_damaged_sample_table_is_named_with_what_is_wrong(native_synth_db, tmp_path, command, damage):
-    db = _copy_db(native_synth_db, tmp_path / "db")
+    db = copy_db(native_synth_db, tmp_path / "db")
     table = db / VERSION / "sample.json"
     rewrite, what = DAMAGE[damage]
     table.write_text(rewrite(table.read_text()))
@@ -304,7 +288,7 @@ def test_a_damaged_sample_table_is_named_with_what_is_wrong(native_synth_db, tmp
 
 @pytest.mark.parametrize("command", ["eval", "viz"])
 def test_an_unusable_out_is_refused_before_the_work_naming_the_given_path(native_synth_db, tmp_path, command):
-    token = _sample_token(native_synth_db)
+    token = first_sample_token(native_synth_db)
     pred = _results(tmp_path / "pred.json", token, [GOOD_VECTOR])
     folder = tmp_path / "emptydir.png"
     folder.mkdir()
@@ -322,7 +306,7 @@ def test_an_unusable_out_is_refused_before_the_work_naming_the_given_path(native
 def test_an_out_in_a_read_only_folder_is_refused_before_the_work(native_synth_db, tmp_path):
     locked = tmp_path / "locked"
     locked.mkdir(mode=0o555)
-    pred = _results(tmp_path / "pred.json", _sample_token(native_synth_db), [GOOD_VECTOR])
+    pred = _results(tmp_path / "pred.json", first_sample_token(native_synth_db), [GOOD_VECTOR])
     code, _, err = cli_bound_by_modes("eval", pred, "--dataroot", native_synth_db, "--version", VERSION,
                                       "--out", locked / "r.json")
     assert code == 2, err
@@ -332,7 +316,7 @@ def test_an_out_in_a_read_only_folder_is_refused_before_the_work(native_synth_db
 
 
 def test_eval_out_into_a_new_folder_still_works(native_synth_db, tmp_path):
-    pred = _results(tmp_path / "pred.json", _sample_token(native_synth_db), [GOOD_VECTOR])
+    pred = _results(tmp_path / "pred.json", first_sample_token(native_synth_db), [GOOD_VECTOR])
     out = tmp_path / "new" / "deeper" / "result.json"
     code, _, err = cli("eval", pred, "--dataroot", native_synth_db, "--version", VERSION, "--out", out)
     assert code == 0, err

@@ -120,7 +120,7 @@ def map_gt(args: argparse.Namespace) -> tuple[dict, str]:
 
 def _run(args: argparse.Namespace) -> int:
     from nuav2.atomic import atomic_write_json
-    from nuav2.cli import UsageError
+    from nuav2.cli import UsageError, resolve_version
     from nuav2.cli_inputs import require_out_path
     from nuav2.evaluate import MAP_CLASSES
     from nuav2.evaluate.chamfer_ap import evaluate_vectors
@@ -128,8 +128,9 @@ def _run(args: argparse.Namespace) -> int:
 
     require_out_path(args.out)
     if not args.gt_json:
-        if not args.dataroot or not args.version:
-            raise UsageError("--dataroot and --version are required (or give --gt-json)")
+        if not args.dataroot:
+            raise UsageError("--dataroot is required (or give --gt-json)")
+        args.version = resolve_version(args.dataroot, args.version)
         check_classes(args.classes, list(MAP_CLASSES), "the map GT")
     preds = load_predictions(args.pred)
     if args.gt_json:
@@ -166,7 +167,8 @@ def register(subparsers) -> None:
     p = subparsers.add_parser("eval", help="chamfer-distance AP / mAP of map predictions (MapTR protocol)")
     p.add_argument("pred", help="predictions: MapTR nuscmap_results.json ({'meta', 'results': [...]})")
     p.add_argument("--dataroot", help="nuScenes-format dataroot whose map gives the GT")
-    p.add_argument("--version", help="database version, e.g. v1.0-trainval")
+    p.add_argument("--version", help="database version, e.g. v1.0-trainval (default: the only one in "
+                                     "--dataroot)")
     p.add_argument("--split", default=None,
                    help="split name (<version>/splits.json, else the devkit's); default: the first present "
                         f"of {', '.join(DEFAULT_SPLITS)}")

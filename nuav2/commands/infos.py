@@ -18,7 +18,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "(or those given), in the layout MapTRv2's nuScenes dataset reads.",
     )
     p.add_argument("dataroot", type=Path, help="nuScenes-format dataroot")
-    p.add_argument("--version", required=True, help="table folder under DATAROOT")
+    p.add_argument("--version", help="table folder under DATAROOT (default: the only one there)")
     p.add_argument("--out", required=True, type=Path, help="directory for the .pkl files")
     p.add_argument("--prefix", default="nuav2",
                    help="file name prefix (default: %(default)s; MapTR uses 'nuscenes')")
@@ -78,12 +78,13 @@ def check_cameras(dataroot: Path, version: str, cameras: list[str] | None) -> No
 
 
 def run(args: argparse.Namespace) -> int:
-    from nuav2.cli import UsageError, require_database
+    from nuav2.cli import UsageError, require_database, resolve_version
     from nuav2.cli_inputs import diagnosed_tables
     from nuav2.devkit_compat import HOOK_DIR
     from nuav2.executors.ray_tasks import RayMissingError
     from nuav2.maptr.infos import MissingCameraError, export_infos
 
+    args.version = resolve_version(args.dataroot, args.version)
     require_database(args.dataroot, args.version)
     check_cameras(args.dataroot, args.version, args.cameras)
     try:

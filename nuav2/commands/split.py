@@ -57,9 +57,10 @@ def _list_split(table: SceneTable, lists_path: str) -> tuple[dict, dict]:
 
 def _run(args: argparse.Namespace) -> int:
     from nuav2 import splits as sp
-    from nuav2.cli import UsageError, require_database
+    from nuav2.cli import UsageError, require_database, resolve_version
     from nuav2.cli_inputs import diagnosed_tables
 
+    args.version = resolve_version(args.dataroot, args.version)
     require_database(args.dataroot, args.version)
     if args.regions and args.lists and not args.report_only:
         raise UsageError("give at most one of --regions and --lists")
@@ -109,7 +110,8 @@ def _run(args: argparse.Namespace) -> int:
 def register(subparsers) -> None:
     p = subparsers.add_parser("split", help="geo-disjoint train/val/test splits (+ leakage report)")
     p.add_argument("dataroot", help="nuScenes-format dataroot (nuScenes, nuAV2, or both merged)")
-    p.add_argument("--version", required=True, help="database version, e.g. v1.0-trainval")
+    p.add_argument("--version", help="database version, e.g. v1.0-trainval (default: the only one in "
+                                     "DATAROOT)")
     p.add_argument(
         "--ratios",
         type=non_negative_float,

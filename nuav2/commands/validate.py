@@ -17,7 +17,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description="Exit 0 with per-table counts if DATAROOT/VERSION conforms, else 1 with every problem "
                     "grouped by table (at most --max-per-kind of each kind listed).")
     p.add_argument("dataroot", type=Path, help="nuScenes dataroot (holds VERSION/, samples/, sweeps/, maps/)")
-    p.add_argument("--version", required=True, help="table folder under DATAROOT, e.g. v1.0-trainval")
+    p.add_argument("--version", help="table folder under DATAROOT, e.g. v1.0-trainval (default: the only one "
+                                     "there)")
     p.add_argument("--no-files", action="store_true", help="skip sample_data files and map PNGs")
     p.add_argument("--no-images", action="store_true", help="skip reading JPEG headers for width/height")
     p.add_argument("--decode-images", action="store_true",
@@ -46,6 +47,9 @@ def require_version_folder(dataroot: Path, version: str) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from nuav2.cli import resolve_version
+
+    args.version = resolve_version(args.dataroot, args.version)
     require_version_folder(args.dataroot, args.version)
     report = validate_database(args.dataroot, args.version, check_files=not args.no_files,
                                check_images=not args.no_images, decode_images=args.decode_images,

@@ -28,7 +28,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "(divider yellow, boundary red, crossing blue, centerline green).",
     )
     p.add_argument("dataroot", type=Path, help="nuScenes-format dataroot")
-    p.add_argument("--version", required=True, help="table folder under DATAROOT")
+    p.add_argument("--version", help="table folder under DATAROOT (default: the only one there)")
     p.add_argument("--sample", required=True, help="sample token")
     p.add_argument("--out", required=True, type=image_path, help="output image (.png, .jpg or .jpeg)")
     p.add_argument("--pred", type=Path, default=None, help="MapTR-format results json to overlay")
@@ -41,11 +41,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from nuav2.cli import require_database
+    from nuav2.cli import require_database, resolve_version
     from nuav2.cli_inputs import diagnosed_tables, require_out_path
     from nuav2.viz import render
 
     require_out_path(args.out)
+    args.version = resolve_version(args.dataroot, args.version)
     require_database(args.dataroot, args.version)
     with diagnosed_tables(args.dataroot, args.version):
         out = render(
