@@ -64,6 +64,13 @@ def warp_db(synth_log: Path, tmp_path_factory) -> Path:
 
 
 @pytest.fixture(scope="session")
+def truth_db(synth_log: Path, tmp_path_factory) -> Path:
+    """The synthetic log's world drawn exactly in the nuScenes rig (the transfer benchmark's oracle)."""
+    return converted(tmp_path_factory, "e2e_truth", synth_log.parent, "--mode", "truth", "--rig", "nuscenes",
+                     "--scale", "0.25")
+
+
+@pytest.fixture(scope="session")
 def tiny_synth_log(tmp_path_factory) -> Path:
     """Small enough for a CI-sized reconstruction (the test_recon_pipeline log)."""
     from test_recon_pipeline import TINY_LOG

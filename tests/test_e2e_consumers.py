@@ -1,7 +1,7 @@
 """Every consumer on the real output of ``nuav2 convert``, in every mode (issue 10).
 
-Databases (built once per session in ``e2e_support``): native on the real AV2 fixture, warp
-and render on synthetic logs, and two logs converted by two runs into one OUT. Consumers:
+Databases (built once per session in ``e2e_support``): native on the real AV2 fixture, warp,
+render and truth on synthetic logs, and two logs converted by two runs into one OUT. Consumers:
 ``nuav2 split``, ``infos``, ``eval`` (default options and a 3-class result file), ``viz``,
 ``validate``, the devkit's ``NuScenes`` tutorial calls and ``NuScenesMap.render_map_in_image``.
 """
@@ -20,12 +20,13 @@ from e2e_helpers import VERSION, cli, logs_meta
 matplotlib.use("Agg")
 pytest_plugins = ["test_writer_support", "e2e_support"]
 
-MODES = ["native", "warp", "render", "two_runs"]
+MODES = ["native", "warp", "render", "truth", "two_runs"]
 
 
 @pytest.fixture(scope="module", params=MODES)
 def db(request) -> Path:
-    name = {"native": "native_fixture_db", "warp": "warp_db", "render": "render_db", "two_runs": "two_run_db"}
+    name = {"native": "native_fixture_db", "warp": "warp_db", "render": "render_db", "truth": "truth_db",
+            "two_runs": "two_run_db"}
     value = request.getfixturevalue(name[request.param])
     return value[0] if isinstance(value, tuple) else value
 
