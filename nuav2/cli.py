@@ -49,8 +49,10 @@ def _raise_terminated(signum, frame) -> None:  # noqa: ARG001 - signal handler s
     raise Terminated()
 
 
-def require_database(dataroot: str | Path, version: str) -> Path:
-    """``dataroot/version`` as a path, or a UsageError naming ``--version`` / DATAROOT and what exists."""
+def require_database(dataroot: str | Path, version: str | None) -> str:
+    """The table folder to read: ``version`` (None: the only one in DATAROOT, :func:`resolve_version`)
+    when it holds nuScenes tables, else a UsageError naming ``--version`` / DATAROOT and what exists."""
+    version = resolve_version(dataroot, version)
     root = Path(dataroot)
     if not root.is_dir():
         raise UsageError(f"{root}: dataroot not found")
@@ -58,7 +60,7 @@ def require_database(dataroot: str | Path, version: str) -> Path:
     if not (folder / "scene.json").is_file():
         raise UsageError(f"--version {version}: {folder} holds no nuScenes tables "
                          f"(versions in {root}: {', '.join(versions_in(root)) or 'none'})")
-    return folder
+    return version
 
 
 def resolve_version(dataroot: str | Path, version: str | None) -> str:

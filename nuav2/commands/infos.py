@@ -78,14 +78,13 @@ def check_cameras(dataroot: Path, version: str, cameras: list[str] | None) -> No
 
 
 def run(args: argparse.Namespace) -> int:
-    from nuav2.cli import UsageError, require_database, resolve_version
+    from nuav2.cli import UsageError, require_database
     from nuav2.cli_inputs import diagnosed_tables
     from nuav2.devkit_compat import HOOK_DIR
     from nuav2.executors.ray_tasks import RayMissingError
     from nuav2.maptr.infos import MissingCameraError, export_infos
 
-    args.version = resolve_version(args.dataroot, args.version)
-    require_database(args.dataroot, args.version)
+    args.version = require_database(args.dataroot, args.version)
     check_cameras(args.dataroot, args.version, args.cameras)
     try:
         with diagnosed_tables(args.dataroot, args.version):

@@ -57,11 +57,10 @@ def _list_split(table: SceneTable, lists_path: str) -> tuple[dict, dict]:
 
 def _run(args: argparse.Namespace) -> int:
     from nuav2 import splits as sp
-    from nuav2.cli import UsageError, require_database, resolve_version
+    from nuav2.cli import UsageError, require_database
     from nuav2.cli_inputs import diagnosed_tables
 
-    args.version = resolve_version(args.dataroot, args.version)
-    require_database(args.dataroot, args.version)
+    args.version = require_database(args.dataroot, args.version)
     if args.regions and args.lists and not args.report_only:
         raise UsageError("give at most one of --regions and --lists")
     if sum(args.ratios) <= 0:

@@ -41,13 +41,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from nuav2.cli import require_database, resolve_version
+    from nuav2.cli import require_database
     from nuav2.cli_inputs import diagnosed_tables, require_out_path
     from nuav2.viz import render
 
     require_out_path(args.out)
-    args.version = resolve_version(args.dataroot, args.version)
-    require_database(args.dataroot, args.version)
+    args.version = require_database(args.dataroot, args.version)
     with diagnosed_tables(args.dataroot, args.version):
         out = render(
             args.dataroot, args.version, args.sample, args.out, args.pred, args.score_thr, args.tile_height
