@@ -15,6 +15,8 @@ from pathlib import Path
 from test_writer_support import add_blank_images, link_log
 
 VERSION = "v1.0-nuav2"
+GOOD_VECTOR = {"pts": [[0.0, -5.0], [0.0, 5.0]], "pts_num": 2, "cls_name": "divider", "type": 0,
+               "confidence_level": 0.9}  # one well-formed MapTR prediction vector
 FIXTURE_ID = "adcf7d18-0510-35b0-a2fa-b4cea13a6d76"  # in av2's TRAIN list (index 469): scene-2469
 OTHER_ID = "00000002-0510-35b0-a2fa-b4cea13a6d76"  # in no av2 list: a 3000-9999 name
 SYNTH_SECONDS = "0.5"
@@ -92,3 +94,10 @@ def copy_db(db: Path, dest: Path) -> Path:
 def first_sample_token(db: Path) -> str:
     """The token of the first record in ``db``'s sample table."""
     return json.loads((db / VERSION / "sample.json").read_text())[0]["token"]
+
+
+def results_file(path: Path, token: str, vectors: list) -> Path:
+    """A MapTR result file (nuscmap_results.json layout) predicting ``vectors`` for one sample."""
+    path.write_text(json.dumps({"meta": {"use_camera": True},
+                                "results": [{"sample_token": token, "vectors": vectors}]}))
+    return path

@@ -13,15 +13,20 @@ import sys
 from pathlib import Path
 
 import pytest
-from e2e_helpers import VERSION, cli, cli_bound_by_modes, copy_db, first_sample_token
+from e2e_helpers import (
+    GOOD_VECTOR,
+    VERSION,
+    cli,
+    cli_bound_by_modes,
+    copy_db,
+    first_sample_token,
+    results_file,
+)
 
 from nuav2.cli import main
 from nuav2.evaluate import MAP_CLASSES
 
 pytest_plugins = ["test_writer_support", "e2e_support"]
-
-GOOD_VECTOR = {"pts": [[0.0, -5.0], [0.0, 5.0]], "pts_num": 2, "cls_name": "divider", "type": 0,
-               "confidence_level": 0.9}
 
 
 def _one_line(err: str) -> str:
@@ -49,12 +54,6 @@ def _refused_while_parsing(argv: list[str], capsys: pytest.CaptureFixture[str]) 
 
 def _tables(db: Path) -> dict[str, bytes]:
     return {p.name: p.read_bytes() for p in sorted((db / VERSION).iterdir())}
-
-
-def _results(path: Path, token: str, vectors: list) -> Path:
-    path.write_text(json.dumps({"meta": {"use_camera": True},
-                                "results": [{"sample_token": token, "vectors": vectors}]}))
-    return path
 
 
 # ------------------------------------------------------------------ 1. split --lists naming no scene
@@ -178,7 +177,7 @@ def test_viz_draws_at_the_smallest_tile_height_into_an_upper_case_jpeg(native_sy
 
 
 def test_eval_refuses_an_unknown_class_listing_the_known_ones(native_synth_db, tmp_path):
-    pred = _results(tmp_path / "pred.json", first_sample_token(native_synth_db), [GOOD_VECTOR])
+    pred = results_file(tmp_path / "pred.json", first_sample_token(native_synth_db), [GOOD_VECTOR])
     msg = _refused("eval", pred, "--dataroot", native_synth_db, "--version", VERSION,
                    "--classes", "divider", "foo")
     assert "--classes" in msg and "foo" in msg and all(c in msg for c in MAP_CLASSES)
@@ -191,7 +190,7 @@ def test_eval_against_a_gt_file_knows_the_file_s_classes(tmp_path):
     gt = tmp_path / "gt.json"
     gt.write_text(json.dumps({"GTs": [{"sample_token": "a", "vectors": [
         {"pts": GOOD_VECTOR["pts"], "cls_name": "stop_line"}]}]}))
-    pred = _results(tmp_path / "pred.json", "a", [{**GOOD_VECTOR, "cls_name": "stop_line"}])
+    pred = results_file(tmp_path / "pred.json", "a", [{**GOOD_VECTOR, "cls_name": "stop_line"}])
     msg = _refused("eval", pred, "--gt-json", gt, "--classes", "stopline")
     assert "--classes" in msg and "stopline" in msg and "stop_line" in msg
     code, out, err = cli("eval", pred, "--gt-json", gt, "--classes", "stop_line", "--json")
@@ -216,7 +215,7 @@ BAD_RECORDS = {
 @pytest.mark.parametrize("field", list(BAD_RECORDS))
 def test_a_malformed_prediction_names_file_sample_vector_and_field(native_synth_db, tmp_path, command, field):
     token = first_sample_token(native_synth_db)
-    pred = _results(tmp_path / "pred.json", token, [GOOD_VECTOR, BAD_RECORDS[field]])
+    pred = results_file(tmp_path / "pred.json", token, [GOOD_VECTOR, BAD_RECORDS[field]])
     if command == "eval":
         msg = _refused("eval", pred, "--dataroot", native_synth_db, "--version", VERSION)
     else:
@@ -263,7 +262,7 @@ DAMAGE = {"truncated": (_truncate, "cannot parse"), "object": (_as_object, "dict
 
 def _command(name: str, db: Path, tmp_path: Path) -> list:
     token = json.loads((db / VERSION / "scene.json").read_text())[0]["first_sample_token"]
-    pred = _results(tmp_path / "pred.json", token, [GOOD_VECTOR])
+    pred = results_file(tmp_path / "pred.json", token, [GOOD_VECTOR])
     return {"split": ["split", db, "--version", VERSION],
             "infos": ["infos", db, "--version", VERSION, "--out", tmp_path / "infos", "--no-progress"],
             "eval": ["eval", pred, "--dataroot", db, "--version", VERSION],
@@ -289,7 +288,7 @@ def test_a_damaged_sample_table_is_named_with_what_is_wrong(native_synth_db, tmp
 @pytest.mark.parametrize("command", ["eval", "viz"])
 def test_an_unusable_out_is_refused_before_the_work_naming_the_given_path(native_synth_db, tmp_path, command):
     token = first_sample_token(native_synth_db)
-    pred = _results(tmp_path / "pred.json", token, [GOOD_VECTOR])
+    pred = results_file(tmp_path / "pred.json", token, [GOOD_VECTOR])
     folder = tmp_path / "emptydir.png"
     folder.mkdir()
     (tmp_path / "afile").write_text("x")
@@ -306,7 +305,7 @@ def test_an_unusable_out_is_refused_before_the_work_naming_the_given_path(native
 def test_an_out_in_a_read_only_folder_is_refused_before_the_work(native_synth_db, tmp_path):
     locked = tmp_path / "locked"
     locked.mkdir(mode=0o555)
-    pred = _results(tmp_path / "pred.json", first_sample_token(native_synth_db), [GOOD_VECTOR])
+    pred = results_file(tmp_path / "pred.json", first_sample_token(native_synth_db), [GOOD_VECTOR])
     code, _, err = cli_bound_by_modes("eval", pred, "--dataroot", native_synth_db, "--version", VERSION,
                                       "--out", locked / "r.json")
     assert code == 2, err
@@ -316,7 +315,7 @@ def test_an_out_in_a_read_only_folder_is_refused_before_the_work(native_synth_db
 
 
 def test_eval_out_into_a_new_folder_still_works(native_synth_db, tmp_path):
-    pred = _results(tmp_path / "pred.json", first_sample_token(native_synth_db), [GOOD_VECTOR])
+    pred = results_file(tmp_path / "pred.json", first_sample_token(native_synth_db), [GOOD_VECTOR])
     out = tmp_path / "new" / "deeper" / "result.json"
     code, _, err = cli("eval", pred, "--dataroot", native_synth_db, "--version", VERSION, "--out", out)
     assert code == 0, err

@@ -9,17 +9,14 @@ import shutil
 from pathlib import Path
 
 import pytest
-from e2e_helpers import VERSION, cli, copy_db, first_sample_token
+from e2e_helpers import GOOD_VECTOR, VERSION, cli, copy_db, first_sample_token, results_file
 
 pytest_plugins = ["test_writer_support", "e2e_support"]
 
 
 def _argv(name: str, db: Path, tmp_path: Path) -> list[object]:
     """Command ``name`` on ``db`` without --version (cheap flags: a check, not a benchmark)."""
-    pred = tmp_path / "pred.json"
-    pred.write_text(json.dumps({"meta": {"use_camera": True}, "results": [
-        {"sample_token": first_sample_token(db), "vectors": [{"pts": [[0.0, -5.0], [0.0, 5.0]], "pts_num": 2,
-                                                         "cls_name": "divider", "confidence_level": 0.9}]}]}))
+    pred = results_file(tmp_path / "pred.json", first_sample_token(db), [GOOD_VECTOR])
     return {"validate": ["validate", db, "--no-images", "--json"],
             "split": ["split", db],
             "infos": ["infos", db, "--out", tmp_path / "infos", "--no-progress"],
@@ -53,11 +50,12 @@ def test_the_only_table_folder_is_the_default_version(name, native_synth_db, tmp
 def test_several_or_no_table_folders_need_version_and_are_listed(name, native_synth_db, tmp_path) -> None:
     db = copy_db(native_synth_db, tmp_path / "db")
     shutil.copytree(db / VERSION, db / "v1.0-other")
-    code, _, err = cli(*_argv(name, db, tmp_path))
+    argv = _argv(name, db, tmp_path)
+    code, _, err = cli(*argv)
     assert code == 2
     assert f"--version: give the table folder; {db} holds several ({VERSION}, v1.0-other)" in err
     assert "Traceback" not in err and "internal error" not in err
     empty = tmp_path / "empty_root"
     empty.mkdir()
-    code, _, err = cli(*[empty if a == db else a for a in _argv(name, db, tmp_path)])
+    code, _, err = cli(*[empty if a == db else a for a in argv])
     assert code == 2 and f"{empty} holds none (no folder with a scene.json)" in err, err

@@ -34,9 +34,9 @@ from test_writer_support import FIXTURE_SWEEP_NS, link_log
 
 pytest_plugins = ["test_writer_support"]
 
-SQUARE_A = np.array([210, 60, 40], np.uint8)  # RGB of checker squares with even floor(x) + floor(y)
-SQUARE_B = np.array([40, 90, 210], np.uint8)
-SKY = np.array([150, 150, 150], np.uint8)
+# RGB of the painted world's classes: squares with even / odd floor(x) + floor(y), and the sky.
+PALETTE = np.array([[210, 60, 40], [40, 90, 210], [150, 150, 150]], np.uint8)
+SKY_CLASS = 2
 RING = ("ring_front_center", "ring_front_left", "ring_front_right", "ring_side_left", "ring_side_right",
         "ring_rear_left", "ring_rear_right")
 COARSE = 8  # source rays are cast every COARSE pixels; the hit points are interpolated in between
@@ -70,11 +70,10 @@ def ground_hits(ground, origin_city: np.ndarray, dirs_city: np.ndarray) -> np.nd
     return hits
 
 
-def checker_rgb(hits_city: np.ndarray) -> np.ndarray:
-    """(..., 3) uint8 colour of the painted world where rays meet it (the sky where they do not)."""
+def checker_class(hits_city: np.ndarray) -> np.ndarray:
+    """Class (PALETTE index) of the painted world where rays meet it (the sky where they do not)."""
     parity = (np.floor(hits_city[..., 0]) + np.floor(hits_city[..., 1])) % 2
-    rgb = np.where(parity[..., None] == 0, SQUARE_A, SQUARE_B)
-    return np.where(np.isnan(hits_city[..., :1]), SKY, rgb).astype(np.uint8)
+    return np.where(np.isnan(hits_city[..., 0]), SKY_CLASS, np.nan_to_num(parity)).astype(int)
 
 
 def city_T_ego_at(poses: pd.DataFrame, ts_ns: int) -> np.ndarray:
@@ -98,7 +97,7 @@ def paint_image(log_dir: Path, cam_name: str, ts_ns: int, ground, poses: pd.Data
     coarse = np.where(sky[..., None], 0.0, hits).astype(np.float64)
     dense = interpolate_nodes(coarse, w, h)
     dense[interpolate_nodes(sky[..., None].astype(float), w, h)[..., 0] > 0] = np.nan  # near a sky node
-    return checker_rgb(dense)
+    return PALETTE[checker_class(dense)]
 
 
 def interpolate_nodes(coarse: np.ndarray, w: int, h: int) -> np.ndarray:
@@ -129,8 +128,8 @@ def painted_log(av2_fixture_log: Path, av2_fixture_calibration: Path, ground, tm
                        av2_fixture_calibration)
     poses = pd.read_feather(log_dir / "city_SE3_egovehicle.feather")
     pose_ns = poses["timestamp_ns"].to_numpy()
+    ts = int(pose_ns[np.argmin(np.abs(pose_ns - FIXTURE_SWEEP_NS))])
     for cam_name in RING:
-        ts = int(pose_ns[np.argmin(np.abs(pose_ns - FIXTURE_SWEEP_NS))])
         rgb = paint_image(log_dir, cam_name, ts, ground, poses)
         ok, jpg = cv2.imencode(".jpg", rgb[..., ::-1], [cv2.IMWRITE_JPEG_QUALITY, 95])
         assert ok
@@ -183,10 +182,9 @@ def covered_by_occluders(K: np.ndarray, cam_T_city: np.ndarray, shape: tuple[int
     return nearest < ground_depth
 
 
-def square_class(rgb: np.ndarray) -> np.ndarray:
-    """Index of the nearest of (square A, square B, sky) to each pixel's colour."""
-    palette = np.stack([SQUARE_A, SQUARE_B, SKY]).astype(int)
-    return np.argmin(((rgb.astype(int)[..., None, :] - palette) ** 2).sum(-1), -1)
+def nearest_class(rgb: np.ndarray) -> np.ndarray:
+    """Index of the PALETTE colour nearest to each pixel's colour."""
+    return np.argmin(((rgb.astype(int)[..., None, :] - PALETTE.astype(int)) ** 2).sum(-1), -1)
 
 
 def agreement(nusc, out: Path, city_offset: np.ndarray, ground, occluders, yaw_error_deg: float = 0.0
@@ -201,8 +199,9 @@ def agreement(nusc, out: Path, city_offset: np.ndarray, ground, occluders, yaw_e
             continue
         sd = nusc.get("sample_data", sd_token)
         cs = nusc.get("calibrated_sensor", sd["calibrated_sensor_token"])
-        global_R_ego = Quaternion(nusc.get("ego_pose", sd["ego_pose_token"])["rotation"]).rotation_matrix
-        ego_t = np.asarray(nusc.get("ego_pose", sd["ego_pose_token"])["translation"])
+        ego_pose = nusc.get("ego_pose", sd["ego_pose_token"])
+        global_R_ego = Quaternion(ego_pose["rotation"]).rotation_matrix
+        ego_t = np.asarray(ego_pose["translation"])
         img = cv2.imread(str(out / sd["filename"]))[..., ::-1]
         h, w = img.shape[:2]
         K = np.asarray(cs["camera_intrinsic"])
@@ -214,15 +213,15 @@ def agreement(nusc, out: Path, city_offset: np.ndarray, ground, occluders, yaw_e
         dirs_city = rays_cam @ city_T_cam[:3, :3].T
         dirs_city /= np.linalg.norm(dirs_city, axis=1, keepdims=True)
         hits = ground_hits(ground, city_T_cam[:3, 3], dirs_city)
-        want = square_class(checker_rgb(hits)).reshape(h, w)
+        want = checker_class(hits).reshape(h, w)
         dist = np.linalg.norm(hits - city_T_cam[:3, 3], axis=1).reshape(h, w)
         depth = np.nan_to_num(((hits - city_T_cam[:3, 3]) @ city_T_cam[:3, 2]).reshape(h, w), nan=np.inf)
         away_from_edges = np.zeros((h, w), bool)
-        for cls in range(3):
+        for cls in range(len(PALETTE)):
             away_from_edges |= cv2.erode((want == cls).astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
         use = (dist > 5.0) & (dist < 12.0) & away_from_edges
         use &= ~covered_by_occluders(K, np.linalg.inv(city_T_cam), (h, w), *occluders, depth)
-        scores[channel] = (int(use.sum()), int((square_class(img)[use] == want[use]).sum()))
+        scores[channel] = (int(use.sum()), int((nearest_class(img)[use] == want[use]).sum()))
     return scores
 
 
@@ -247,9 +246,10 @@ def convert_painted(painted_log: Path, ground, out: Path, mode: str) -> tuple[di
     scores = agreement(*args)
     assert len(scores) == 6 and all(n > 3000 for n, _ in scores.values()), scores
     per_camera = {ch: round(ok / n, 4) for ch, (n, ok) in scores.items()}
-    print(f"{mode}: agreement {overall_agreement(scores):.4f} of {sum(n for n, _ in scores.values())} px, "
+    overall = overall_agreement(scores)
+    print(f"{mode}: agreement {overall:.4f} of {sum(n for n, _ in scores.values())} px, "
           f"per camera {per_camera}")  # the figures docs/reconstruction.md quotes (pytest -s)
-    return per_camera, overall_agreement(scores), args
+    return per_camera, overall, args
 
 
 def overall_agreement(scores: dict[str, tuple[int, int]]) -> float:
