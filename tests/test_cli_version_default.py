@@ -21,10 +21,11 @@ def _argv(name: str, db: Path, tmp_path: Path) -> list[object]:
             "split": ["split", db],
             "infos": ["infos", db, "--out", tmp_path / "infos", "--no-progress"],
             "eval": ["eval", pred, "--dataroot", db, "--json"],
-            "viz": ["viz", db, "--sample", first_sample_token(db), "--out", tmp_path / "v.png"]}[name]
+            "viz": ["viz", db, "--sample", first_sample_token(db), "--out", tmp_path / "v.png"],
+            "bench_loader": ["bench", "loader", db, "--samples", "1", "--json"]}[name]
 
 
-COMMANDS = ("validate", "split", "infos", "eval", "viz")
+COMMANDS = ("validate", "split", "infos", "eval", "viz", "bench_loader")
 
 
 @pytest.mark.parametrize("name", COMMANDS)
@@ -44,6 +45,8 @@ def test_the_only_table_folder_is_the_default_version(name, native_synth_db, tmp
         assert json.loads(out)["n_samples"] > 0
     if name == "viz":
         assert (tmp_path / "v.png").stat().st_size > 0
+    if name == "bench_loader":
+        assert json.loads(out)["samples"] == 1
 
 
 @pytest.mark.parametrize("name", COMMANDS)

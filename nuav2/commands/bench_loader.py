@@ -1,4 +1,4 @@
-"""``nuav2 bench loader DATAROOT --version V``: MapTR loader throughput with GT extraction, as JSON."""
+"""``nuav2 bench loader [DATAROOT] [--version V]``: MapTR loader throughput with GT extraction, as JSON."""
 
 from __future__ import annotations
 
@@ -7,8 +7,10 @@ import json
 from pathlib import Path
 
 from nuav2.bench.cli_args import synth_image_scale, synth_seconds
-from nuav2.cli import group
+from nuav2.cli import group, require_database
 from nuav2.cli_types import positive_float, positive_int
+
+SYNTHETIC_VERSION = "v1.0-nuav2"
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -26,7 +28,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         default=None,
         help="nuScenes-format dataroot (default: convert a fresh synthetic AV2 log)",
     )
-    p.add_argument("--version", default="v1.0-nuav2", help="table folder under DATAROOT")
+    p.add_argument("--version", default=None,
+                   help="table folder under DATAROOT (default: the only one there; "
+                   f"{SYNTHETIC_VERSION} for the synthetic log)")
     p.add_argument("--split", default=None,
                    help="split to read (default: the alphabetically first in splits.json, usually all)")
     p.add_argument("--samples", type=positive_int, default=50, help="keyframes to time, >= 1")
@@ -52,9 +56,11 @@ def run(args: argparse.Namespace) -> int:
     from nuav2.bench.loader import bench_loader, synthetic_dataroot
 
     if args.dataroot is not None:
-        result = bench_loader(args.dataroot, args.version, args.split, args.samples, args.image_scale)
+        version = require_database(args.dataroot, args.version)
+        result = bench_loader(args.dataroot, version, args.split, args.samples, args.image_scale)
     else:
-        with synthetic_dataroot(args.synthetic_seconds, args.synthetic_image_scale, args.version) as root:
-            result = bench_loader(root, args.version, args.split, args.samples, args.image_scale)
+        version = args.version or SYNTHETIC_VERSION
+        with synthetic_dataroot(args.synthetic_seconds, args.synthetic_image_scale, version) as root:
+            result = bench_loader(root, version, args.split, args.samples, args.image_scale)
     print(json.dumps(result, indent=None if args.json else 1))
     return 0
