@@ -130,9 +130,21 @@ def _log_above_progress_bars():
     return logging_redirect_tqdm()
 
 
+def _leaf_parser(args: argparse.Namespace) -> argparse.ArgumentParser:
+    """The sub-command's own parser (``nuav2 bench loader``), so its errors name it, not ``nuav2``."""
+    assert _TOP is not None
+    leaf = _TOP.choices[args.command]
+    kind = getattr(args, f"{args.command}_cmd", None)
+    if args.command in _GROUPS and kind is not None:
+        leaf = _GROUPS[args.command].choices[kind]
+    return leaf
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args, unknown = parser.parse_known_args(argv)
+    if unknown:  # argparse would blame the top-level parser; the sub-command owns the flags
+        _leaf_parser(args).error(f"unrecognized arguments: {' '.join(unknown)}")
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
                         format="%(levelname)s %(name)s: %(message)s")
     in_main_thread = threading.current_thread() is threading.main_thread()  # signal.signal's rule

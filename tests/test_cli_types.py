@@ -32,3 +32,15 @@ def test_a_usage_error_is_one_line_naming_the_command(capsys):
     err = capsys.readouterr().err
     assert exit_.value.code == 2 and err.count("\n") == 1
     assert err.startswith("nuav2 convert av2: the following arguments are required: out")
+
+
+@pytest.mark.parametrize("argv, prog", [(["split", "db", "--val-fraction", "2"], "nuav2 split"),
+                                        (["bench", "loader", "--foo"], "nuav2 bench loader"),
+                                        (["convert", "av2", "a", "b", "--bar"], "nuav2 convert av2")])
+def test_an_unknown_flag_is_blamed_on_the_sub_command_that_was_given_it(argv, prog, capsys):
+    with pytest.raises(SystemExit) as exit_:
+        main(argv)
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and err.count("\n") == 1
+    unknown = " ".join(a for a in argv if a.startswith("--") or a == "2")
+    assert err == f"{prog}: unrecognized arguments: {unknown} (see '{prog} --help')\n"
