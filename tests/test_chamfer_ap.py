@@ -472,3 +472,19 @@ def test_eval_cli_builds_gt_from_the_map(tmp_path, capsys):
     pred.write_text(json.dumps({"meta": {}, "results": results}))
     assert main(args) == 2
     assert "not in the GT set" in capsys.readouterr().err
+
+
+def test_repeated_thresholds_are_refused_rather_than_counted_twice_in_map():
+    gts = {"t": [("divider", np.array([[0.0, 0.0], [10.0, 0.0]]))]}
+    preds = {"t": [("divider", np.array([[0.0, 0.8], [10.0, 0.8]]), 0.9)]}
+    with pytest.raises(ValueError, match=r"thresholds must be distinct, got \[0.5, 0.5, 1.5\]"):
+        evaluate_vectors(gts, preds, classes=("divider",), thresholds=(0.5, 0.5, 1.5))
+    assert evaluate_vectors(gts, preds, classes=("divider",), thresholds=(0.5, 1.5))["mAP"] == 0.5
+
+
+def test_a_non_finite_prediction_is_named_by_its_own_index_after_a_dropped_one():
+    gts = {"t": [("divider", np.array([[0.0, 0.0], [1.0, 0.0]]))]}
+    preds = {"t": [("divider", np.array([[5.0, 5.0]]), 0.9),  # one point: dropped
+                   ("divider", np.array([[0.0, 0.0], [np.nan, 0.0]]), 0.8)]}
+    with pytest.raises(ValueError, match=r"sample t: prediction vector 1 \(divider\) has NaN or Inf"):
+        evaluate_vectors(gts, preds)

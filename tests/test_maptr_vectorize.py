@@ -454,3 +454,13 @@ def test_empty_map_gives_no_vectors(tmp_path):
     vec = LocalMapVectorizer(_nusc_map(tmp_path))
     assert vec.vectors(MapPatch.from_pose(_lidar_pose(10.0, 10.0, 0.3))) == []
     assert vec.map is None  # the devkit map is released once the geometry is extracted
+
+
+def test_a_start_repeated_to_the_millimetre_stays_a_root():
+    """Clipping can leave two first points that round to one node; unlike MapTRv2's converter (a
+    self-loop there makes the node a non-root and drops its paths) the lane's path is kept."""
+    pieces = {"a": [np.array([[0.0, 0.0], [0.0002, 0.0], [5.0, 0.0]])],
+              "b": [np.array([[5.0, 0.0], [10.0, 0.0]])]}
+    paths = centerline_paths(pieces, [("a", "b")], simplify_m=0.0)
+    assert len(paths) == 1
+    assert paths[0].coords[0] == (0.0, 0.0) and paths[0].coords[-1] == (10.0, 0.0)

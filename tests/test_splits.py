@@ -386,3 +386,18 @@ def test_cli_writes_devkit_readable_splits_and_reports(tmp_path, capsys):
     report = json.loads(capsys.readouterr().out)
     assert report["existing"]["splits.json:geo_*"]["leakage"]["val"]["share"] == 1.0
     assert "new" not in report
+
+
+def test_a_listed_log_id_assigns_every_scene_of_that_log():
+    """nuScenes logs hold several scenes: naming the log must move all of them, not the first."""
+    ids = {
+        "scene-0001": {"scene-0001", "tok1", "logtok1", "n015-log"},
+        "scene-0002": {"scene-0002", "tok2", "logtok1", "n015-log"},
+        "scene-0003": {"scene-0003", "tok3", "logtok2", "n008-log"},
+    }
+    out, unmatched = list_split(ids, {"train": ["n008-log"], "val": ["n015-log"]})
+    assert out == {"train": ["scene-0003"], "val": ["scene-0001", "scene-0002"], "test": [],
+                   "discarded": []}
+    assert unmatched == []
+    with pytest.raises(ValueError, match="scene-0002 is listed in both train and val"):
+        list_split(ids, {"train": ["scene-0002"], "val": ["logtok1"]})

@@ -88,10 +88,10 @@ def _collect(
             if name not in class_index:
                 continue
             pts = _as_points(vec[1], f"sample {token}: {kind} vector {i} ({name})")
-            where.append((token, i, name))
             if len(pts) < 2:
                 dropped += 1
                 continue
+            where.append((token, i, name))  # one entry per kept line, as ``raw``
             if is_pred:
                 conf = float(vec[2])
                 if not np.isfinite(conf):
@@ -395,6 +395,8 @@ def evaluate_vectors(
     thr = np.asarray([float(t) for t in thresholds], dtype=np.float64)
     if len(thr) == 0 or np.any(~np.isfinite(thr)) or np.any(thr <= 0) or np.any(thr >= -NONCANDIDATE_SCORE):
         raise ValueError(f"thresholds must be in (0, {-NONCANDIDATE_SCORE}) m, got {list(thresholds)}")
+    if len(np.unique(thr)) != len(thr):  # a repeat would count twice in mAP but once in the table
+        raise ValueError(f"thresholds must be distinct, got {list(thresholds)}")
     if len(set(classes)) != len(classes) or not classes:
         raise ValueError(f"classes must be distinct and non-empty, got {list(classes)}")
     tokens = sorted(gts)

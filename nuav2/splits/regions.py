@@ -76,24 +76,24 @@ def list_split(
     unknown_keys = [k for k in lists if k not in SPLITS]
     if unknown_keys:
         raise ValueError(f"lists may only hold {SPLITS}, got {unknown_keys}")
-    owner: dict[str, str] = {}
+    named: dict[str, list[str]] = {}  # a log id names every scene of that log
     for scene, ids in identifiers.items():
         for ident in ids:
-            owner.setdefault(ident, scene)
+            named.setdefault(ident, []).append(scene)
     out: dict[str, list[str]] = {k: [] for k in (*SPLITS, DISCARDED)}
     where: dict[str, str] = {}
     unmatched = []
     for split in SPLITS:
         for entry in lists.get(split, []):
-            scene = owner.get(entry)
-            if scene is None:
+            if entry not in named:
                 unmatched.append(entry)
                 continue
-            if where.get(scene, split) != split:
-                raise ValueError(f"scene {scene} is listed in both {where[scene]} and {split}")
-            if scene not in where:
-                where[scene] = split
-                out[split].append(scene)
+            for scene in named[entry]:
+                if where.get(scene, split) != split:
+                    raise ValueError(f"scene {scene} is listed in both {where[scene]} and {split}")
+                if scene not in where:
+                    where[scene] = split
+                    out[split].append(scene)
     out[DISCARDED] = sorted(s for s in identifiers if s not in where)
     return {k: sorted(v) for k, v in out.items()}, unmatched
 
