@@ -84,6 +84,15 @@ def _replace(src: Path, dst: Path) -> None:
         raise OSError(e.errno, f"{e.strerror} (replacing it with {src.name})", str(dst)) from None
 
 
+def remove_directory(path: str | Path) -> None:
+    """Take ``path`` away at once (renamed aside under a hidden name, then removed), so a reader
+    sees the whole folder or none of it, never a half-deleted one."""
+    path = Path(path)
+    old = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".old", dir=path.parent))
+    _replace(path, old)
+    _remove_or_warn(old)
+
+
 def _remove_or_warn(path: Path) -> None:
     shutil.rmtree(path, ignore_errors=True)
     if path.exists():

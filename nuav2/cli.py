@@ -16,6 +16,7 @@ import pkgutil
 import signal
 import sys
 import threading
+import time
 import traceback
 from pathlib import Path
 
@@ -40,12 +41,20 @@ class Terminated(KeyboardInterrupt):
     half-written file is removed on the way out, instead of the process dying where it stands."""
 
 
-_TERMINATED = []  # set by the handler: code between it and main (Ray's wait) may re-raise a plain Ctrl-C
+# When the handler ran: code between it and main (Ray's wait) may re-raise a plain Ctrl-C.
+_TERMINATED: list[float] = []
+
+
+# A second SIGTERM this soon after the first must not cut the cleanup short; a later one raises
+# again, so a Terminated that third-party code swallowed (a bare ``except:``) is not the last word.
+TERMINATE_GRACE_S = 10.0
 
 
 def _raise_terminated(signum, frame) -> None:  # noqa: ARG001 - signal handler signature
-    signal.signal(signal.SIGTERM, signal.SIG_IGN)  # a second one must not cut the cleanup short
-    _TERMINATED.append(signum)
+    now = time.monotonic()
+    if _TERMINATED and now - _TERMINATED[-1] < TERMINATE_GRACE_S:
+        return
+    _TERMINATED.append(now)
     raise Terminated()
 
 

@@ -26,6 +26,7 @@ from nuav2.image_sources import MODES, image_source_for, write_quality_table
 from nuav2.nuscenes_db import shards as sh
 from nuav2.nuscenes_db.images import IMAGE_LINKS, NativeImages
 from nuav2.nuscenes_db.merge import LOGS_FILE, merge_shards
+from nuav2.nuscenes_db.rewrites import DATA_DIRS, other_versions_using, remove_log_files, retire_tables_naming
 from nuav2.nuscenes_db.scene_names import SceneNameError
 from nuav2.nuscenes_db.scene_names import scene_names_for as _scene_names
 from nuav2.nuscenes_db.writer import WRITER_FORMAT, WriterOptions, write_log
@@ -314,10 +315,24 @@ def convert_av2(src: Path, out: Path, options: ConvertOptions | None = None) -> 
 
     jobs = []
     for log_dir in logs:
-        if sh.is_complete(sh.shard_dir(out, options.version, log_dir.name), fingerprint):
+        try:
+            shard = sh.shard_dir(out, options.version, log_dir.name)
+        except ValueError as e:  # a name no shard can have: this log fails, the others convert
+            report.failed.append({"log_id": log_dir.name, "log_dir": str(log_dir),
+                                  "error": f"ValueError: {e}"})
+            continue
+        if sh.is_complete(shard, fingerprint):
             report.resumed.append(log_dir.name)
         else:
             jobs.append(log_dir)
+    clashes = other_versions_using(out, options.version, fingerprint, [j.name for j in jobs])
+    if clashes:
+        raise ConvertError(
+            f"{out} holds {len(clashes)} log(s) of another --version converted with other options "
+            f"({', '.join(clashes[:3])}{', ...' if len(clashes) > 3 else ''}); both versions would share "
+            f"those logs' image files, and rewriting them would change that version's images: use "
+            f"another OUT, or that version's options")
+    retire_tables_naming(out / options.version, [j.name for j in jobs])
     if report.resumed:
         log.info("resuming: %d of %d logs already have a complete shard", len(report.resumed), len(logs))
     if earlier:
@@ -339,6 +354,11 @@ def convert_av2(src: Path, out: Path, options: ConvertOptions | None = None) -> 
         else:  # the CLI lists failures at the end; the progress line counts them meanwhile
             log.debug("log %s failed: %s", r["log_dir"], r["error"])
             report.failed.append(r)
+            # a worker killed mid-log (out of memory) never ran the writer's own cleanup
+            remove_log_files(out, options.version, r["log_id"])
+    if report.failed:
+        prune_empty_dirs(out, DATA_DIRS)
+    report.failed.sort(key=lambda r: r["log_id"])
 
     done = {x: sh.shard_dir(out, options.version, x) for x in report.converted + report.resumed}
     if done:
@@ -362,8 +382,6 @@ def convert_av2(src: Path, out: Path, options: ConvertOptions | None = None) -> 
         raise ConvertError(f"no log converted{many}: {why}{')' if many else ''}; see {out / REPORT_FILE}")
     return report
 
-
-DATA_DIRS = ("samples", "sweeps")
 
 
 def prune_empty_dirs(out: Path, names: tuple[str, ...]) -> None:

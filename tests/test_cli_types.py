@@ -44,3 +44,19 @@ def test_an_unknown_flag_is_blamed_on_the_sub_command_that_was_given_it(argv, pr
     assert exit_.value.code == 2 and err.count("\n") == 1
     unknown = " ".join(a for a in argv if a.startswith("--") or a == "2")
     assert err == f"{prog}: unrecognized arguments: {unknown} (see '{prog} --help')\n"
+
+
+def test_a_second_sigterm_is_ignored_during_cleanup_but_a_later_one_raises_again():
+    """A swallowed Terminated (third-party bare ``except:``) must not make the process unkillable."""
+    from nuav2 import cli
+
+    cli._TERMINATED.clear()
+    try:
+        with pytest.raises(cli.Terminated):
+            cli._raise_terminated(15, None)
+        assert cli._raise_terminated(15, None) is None  # within the grace: the cleanup goes on
+        cli._TERMINATED[-1] -= cli.TERMINATE_GRACE_S + 1
+        with pytest.raises(cli.Terminated):
+            cli._raise_terminated(15, None)
+    finally:
+        cli._TERMINATED.clear()

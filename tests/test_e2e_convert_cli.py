@@ -218,6 +218,7 @@ def test_verbose_shows_the_traceback(a_file: Path, synth_log: Path):
     (["--rig", "/no/such/rig.json"], "--rig"),
     (["--scale", "0.5"], "--scale"),
     (["--recon-preset", "fast"], "--recon-preset"),
+    (["--mode", "warp", "--image-link", "symlink"], "--image-link"),
 ])
 def test_flags_of_other_modes_are_errors(flags: list[str], named: str, synth_log: Path, tmp_path: Path):
     code, _, err = cli("convert", "av2", synth_log.parent, tmp_path / "out", "--no-progress", *flags)

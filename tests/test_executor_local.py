@@ -125,6 +125,7 @@ def test_a_log_that_kills_every_worker_is_given_up_after_the_retries(
     assert len(report["failed"]) == 3 and all("worker process died 2 times" in f["error"]
                                               for f in report["failed"])
     assert all(len(p.read_text().split()) <= 2 for p in hook.glob("*.attempts"))
+    assert not (out / "samples").exists() and not (out / "sweeps").exists()  # killed logs' files removed
     assert "nuav2 convert: no log converted" in capsys.readouterr().err
 
 

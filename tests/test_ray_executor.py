@@ -118,6 +118,7 @@ def test_a_log_that_kills_every_worker_is_retried_a_bounded_number_of_times(
     assert sorted(f["log_id"] for f in report["failed"]) == logs[:2]
     assert all("after 1 retries" in f["error"] for f in report["failed"])
     assert all(len(p.read_text().split()) == 2 for p in hook.glob("*.attempts"))  # 1 try + 1 retry each
+    assert not (out / "samples").exists() and not (out / "sweeps").exists()  # killed logs' files removed
 
 
 def test_ray_infos_are_byte_identical_to_one_process(local_ray, reference_out: Path, tmp_path: Path):

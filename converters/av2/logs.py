@@ -23,9 +23,14 @@ def _logs_in(split_dir: Path) -> list[Path]:
                   if p.is_dir() and not p.name.startswith(".") and _maybe_log_dir(p))
 
 
+# What else a log dir holds: one that has these but no pose file is a damaged log (a partial
+# download), kept so that its conversion fails and is reported, not silently left out.
+_LOG_PARTS = ("sensors", "calibration", "annotations.feather", "map")
+
+
 def _maybe_log_dir(path: Path) -> bool:
     try:
-        return is_log_dir(path)
+        return is_log_dir(path) or any((path / part).exists() for part in _LOG_PARTS)
     except PermissionError:
         return True
 

@@ -21,7 +21,8 @@ _TARGET_RIG_MODES = ("warp", "render", "truth")
 _MODE_FLAGS = {"rig": ("--rig", _TARGET_RIG_MODES), "scale": ("--scale", _TARGET_RIG_MODES),
                "recon_preset": ("--recon-preset", ("render",)),
                "min_confidence": ("--min-confidence", ("render",)),
-               "device": ("--device", ("render",))}
+               "device": ("--device", ("render",)),
+               "image_link": ("--image-link", ("native",))}
 
 
 def _options(args: argparse.Namespace):  # -> nuav2.convert.ConvertOptions (imported lazily)
@@ -33,7 +34,7 @@ def _options(args: argparse.Namespace):  # -> nuav2.convert.ConvertOptions (impo
             raise UsageError(f"{flag} applies to --mode {' and '.join(modes)} only, not --mode {args.mode}")
     given = {name: getattr(args, name) for name in _MODE_FLAGS if getattr(args, name) is not None}
     return ConvertOptions(mode=args.mode, version=args.version, keyframe_hz=args.keyframe_hz,
-                          workers=args.workers, image_link=args.image_link,
+                          workers=args.workers,
                           calibration_dir=args.calibration, require_cameras=not args.allow_missing_cameras,
                           show_progress=not args.no_progress, executor=args.executor,
                           ray_address=args.ray_address, cpus_per_task=args.cpus_per_task,
@@ -114,8 +115,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "of the local Ray instance); in warp mode a worker with two cores to itself renders "
                         "two images at once")
     _add_executor_args(p)
-    p.add_argument("--image-link", choices=["copy", "hardlink", "symlink"], default="copy",
-                   help="how native images reach OUT (default: %(default)s)")
+    p.add_argument("--image-link", choices=["copy", "hardlink", "symlink"], default=None,
+                   help="native: how the source images reach OUT (default: copy)")
     p.add_argument("--calibration", type=Path, default=None,
                    help="calibration dir (egovehicle_SE3_sensor + intrinsics) for logs that ship none")
     p.add_argument("--allow-missing-cameras", action="store_true",

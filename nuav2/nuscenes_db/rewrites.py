@@ -1,0 +1,82 @@
+"""What rewriting a log's data files does to the databases already in OUT.
+
+A log's images and LiDAR files have the same names whatever the options or ``--version``
+(``writer.data_filename``), so a run that writes a log again replaces files other tables may
+point at. These checks run before the first file is written and after the last log finished, so
+no table ever names a file that is gone or that another conversion overwrote.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from collections.abc import Iterable
+from pathlib import Path
+
+from nuav2.atomic import remove_directory
+from nuav2.nuscenes_db import shards as sh
+from nuav2.nuscenes_db.merge import LOGS_FILE
+
+log = logging.getLogger(__name__)
+DATA_DIRS = ("samples", "sweeps")
+
+
+def other_versions_using(out: Path, version: str, fingerprint: str, rewritten: Iterable[str]) -> list[str]:
+    """``version/log`` for each log this run rewrites that another version in OUT holds converted
+    with other options: rewriting would change the images under that version's tables."""
+    root = Path(out) / sh.SHARDS_DIRNAME
+    if not root.is_dir():
+        return []
+    rewritten = set(rewritten)
+    clashes = []
+    for other in sorted(p.name for p in root.iterdir() if p.is_dir() and p.name != version):
+        for log_id, path in sh.existing_shards(out, other).items():
+            if log_id in rewritten and not sh.is_complete(path, fingerprint):
+                clashes.append(f"{other}/{log_id}")
+    return clashes
+
+
+def retire_tables_naming(folder: Path, rewritten: Iterable[str]) -> list[str]:
+    """Remove the tables in ``folder`` when they name a log this run rewrites (its files are replaced
+    now, and removed if the log then fails): the merge writes them anew; until it does, OUT holds no
+    tables that name a missing or changed file. Returns the logs that caused it."""
+    path = Path(folder) / LOGS_FILE
+    if not path.is_file():
+        return []
+    try:
+        named = {r.get("log_id") for r in json.loads(path.read_text()) if isinstance(r, dict)}
+    except (OSError, ValueError, TypeError):
+        named = set(rewritten)  # unreadable: treat as naming them all; the merge rewrites it anyway
+    hit = sorted(named & set(rewritten))
+    if hit:
+        names = ", ".join(hit[:3]) + (", ..." if len(hit) > 3 else "")
+        log.warning("%s: removing these tables before %d of their logs are written again (%s); this run's "
+                    "merge writes them anew", folder, len(hit), names)
+        remove_directory(folder)
+    return hit
+
+
+def remove_log_files(out: Path, version: str, log_id: str) -> int:
+    """Remove a failed log's data files (and temp files a killed worker left beside them), except
+    those another version's complete shard still lists; returns how many were removed."""
+    keep: set[str] = set()
+    root = Path(out) / sh.SHARDS_DIRNAME
+    if root.is_dir():
+        for other in root.iterdir():
+            if other.is_dir() and other.name != version and (other / log_id / sh.META_FILE).is_file():
+                keep |= sh.data_files(other / log_id)
+    removed = 0
+    for top in DATA_DIRS:
+        base = Path(out) / top
+        if not base.is_dir():
+            continue
+        for channel in base.iterdir():
+            prefix = f"{log_id}__{channel.name}__"
+            if not channel.is_dir():
+                continue
+            for f in channel.iterdir():
+                rel = f"{top}/{channel.name}/{f.name}"
+                if f.name.lstrip(".").startswith(prefix) and rel not in keep and not f.is_dir():
+                    f.unlink(missing_ok=True)
+                    removed += 1
+    return removed
