@@ -281,7 +281,8 @@ def test_mask_is_the_drivable_area(written, poses_xy_city):
     rng = np.random.default_rng(0)
     pts = rng.uniform([0, 0], art.canvas_edge, size=(4000, 2))
     inside = shapely.contains_xy(drivable, pts[:, 0], pts[:, 1])
-    far = np.array([drivable.boundary.distance(Point(p)) > 0.15 for p in pts])
+    # MapMask answers for the pixel whose centre is nearest: at most half a pixel diagonal away
+    far = np.array([drivable.boundary.distance(Point(p)) > 0.05 * np.sqrt(2) + 1e-6 for p in pts])
     on = mm.is_on_mask(pts[:, 0], pts[:, 1])
     assert inside[far].any() and (~inside[far]).any()
     np.testing.assert_array_equal(on[far], inside[far])
@@ -372,21 +373,6 @@ def test_dividers_dedup_classify_and_chain():
     assert LineString(lane_div[0].xy).equals(LineString([[0, -3], [10, -3]]))  # shared by 1 and 3, once
     assert len(road[0].segment_types) == len(road[0].xy)
     assert {s[0] for s in road[0].sources} == {1, 2, 4, 5}
-
-
-def test_rasterization_oracle():
-    from nuav2.nuscenes_db.map_mask import rasterize_polygons
-
-    ring = Polygon([(2, 2), (18, 2), (18, 12), (2, 12)], [[(6, 5), (12, 5), (12, 9), (6, 9)]])
-    island = Polygon([(8, 6), (10, 6), (10, 8), (8, 8)])  # inside the hole: must survive
-    mask = rasterize_polygons([island, ring], (20.0, 15.0), 0.1)
-    assert mask.shape == (150, 200)
-    rows, cols = np.mgrid[0:150, 0:200]
-    x, y = cols * 0.1, (150 - rows) * 0.1  # MapMask's pixel -> global convention
-    union = shapely.union(ring, island)
-    inside = shapely.contains_xy(union, x, y)
-    far = shapely.distance(union.boundary, shapely.points(x, y)) > 0.11
-    np.testing.assert_array_equal(mask[far] == 255, inside[far])
 
 
 # ---------------------------------------------------------------- hard cases, through the devkit

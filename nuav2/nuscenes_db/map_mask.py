@@ -2,7 +2,7 @@
 
 The devkit reads pixel ``(px, py) = (round(x / res), round(H - y / res))`` for global ``(x, y)``,
 so the image's bottom-left is global (0, 0) and a pixel's centre sits at integer pixel
-coordinates; polygons are filled at those centres, with sub-pixel vertex precision.
+coordinates; a pixel is drivable when its centre lies in (or on) a polygon.
 """
 
 from __future__ import annotations
@@ -13,6 +13,7 @@ import math
 
 import cv2
 import numpy as np
+import shapely
 from PIL import Image
 from shapely.geometry import Polygon
 
@@ -46,9 +47,11 @@ def mask_shape(canvas_edge: tuple[float, float], resolution_m: float = RESOLUTIO
     return int(round(canvas_edge[1] / resolution_m)), int(round(canvas_edge[0] / resolution_m))
 
 
-def _ring_px(coords: np.ndarray, rows: int, resolution_m: float) -> np.ndarray:
+def _ring_px(coords: np.ndarray, rows: int, resolution_m: float, origin_px: tuple[int, int]) -> np.ndarray:
+    """A ring in cv2 fixed-point pixel coordinates of the window whose top-left pixel is ``origin_px``."""
     xy = np.asarray(coords, dtype=np.float64)[:, :2]
-    px = np.stack([xy[:, 0] / resolution_m, rows - xy[:, 1] / resolution_m], axis=1)
+    px = np.stack([xy[:, 0] / resolution_m - origin_px[0],
+                   rows - xy[:, 1] / resolution_m - origin_px[1]], axis=1)
     return np.round(px * (1 << _SHIFT)).astype(np.int32)
 
 
@@ -56,21 +59,37 @@ def rasterize_polygons(polygons: list[Polygon], canvas_edge: tuple[float, float]
                        resolution_m: float = RESOLUTION_M) -> np.ndarray:
     """uint8 (rows, cols) mask: FOREGROUND where a pixel centre lies in any polygon (holes respected).
 
-    Each polygon is filled on its own (exterior on, then its holes off) and OR-ed in, so one
-    polygon's hole never erases another polygon lying inside it.
+    Each polygon is filled on its own, in the window of its bounds (exterior on, then its holes
+    off) and OR-ed in, so one polygon's hole never erases another polygon lying inside it.
+    ``cv2.fillPoly`` also fills every pixel an edge passes through, which grew every area by up
+    to a pixel (0.1 m): the pixels along the edges are therefore decided by testing their centres.
     """
     rows, cols = mask_shape(canvas_edge, resolution_m)
     mask = np.zeros((rows, cols), np.uint8)
     for poly in polygons:
         if poly.is_empty:
             continue
-        one = np.zeros_like(mask)
-        cv2.fillPoly(one, [_ring_px(np.asarray(poly.exterior.coords), rows, resolution_m)], FOREGROUND,
-                     lineType=cv2.LINE_8, shift=_SHIFT)
-        holes = [_ring_px(np.asarray(r.coords), rows, resolution_m) for r in poly.interiors]
-        if holes:
-            cv2.fillPoly(one, holes, 0, lineType=cv2.LINE_8, shift=_SHIFT)
-        np.maximum(mask, one, out=mask)
+        x0, y0, x1, y1 = poly.bounds
+        # the window spans the whole polygon, off the canvas too (cv2 clips edges at the window's
+        # border, and a fill clipped there differs from the polygon's); its overlap is pasted
+        c0, c1 = math.floor(x0 / resolution_m) - 1, math.ceil(x1 / resolution_m) + 2
+        r0, r1 = math.floor(rows - y1 / resolution_m) - 1, math.ceil(rows - y0 / resolution_m) + 2
+        if c0 >= cols or r0 >= rows or c1 <= 0 or r1 <= 0:
+            continue
+        rings = [_ring_px(np.asarray(r.coords), rows, resolution_m, (c0, r0))
+                 for r in (poly.exterior, *poly.interiors)]
+        one = np.zeros((r1 - r0, c1 - c0), np.uint8)
+        cv2.fillPoly(one, rings[:1], FOREGROUND, lineType=cv2.LINE_8, shift=_SHIFT)
+        if len(rings) > 1:
+            cv2.fillPoly(one, rings[1:], 0, lineType=cv2.LINE_8, shift=_SHIFT)
+        edge = np.zeros_like(one)
+        cv2.polylines(edge, rings, isClosed=True, color=1, thickness=1, lineType=cv2.LINE_8, shift=_SHIFT)
+        py, px = np.nonzero(cv2.dilate(edge, np.ones((3, 3), np.uint8)))
+        covered = shapely.intersects_xy(poly, (px + c0) * resolution_m, (rows - (py + r0)) * resolution_m)
+        one[py, px] = np.where(covered, FOREGROUND, 0)
+        a, b = max(r0, 0), max(c0, 0)
+        window = mask[a:min(r1, rows), b:min(c1, cols)]
+        np.maximum(window, one[a - r0:a - r0 + window.shape[0], b - c0:b - c0 + window.shape[1]], out=window)
     return mask
 
 
