@@ -26,7 +26,13 @@ from nuav2.image_sources import MODES, image_source_for, write_quality_table
 from nuav2.nuscenes_db import shards as sh
 from nuav2.nuscenes_db.images import IMAGE_LINKS, NativeImages
 from nuav2.nuscenes_db.merge import LOGS_FILE, merge_shards
-from nuav2.nuscenes_db.rewrites import DATA_DIRS, other_versions_using, remove_log_files, retire_tables_naming
+from nuav2.nuscenes_db.rewrites import (
+    DATA_DIRS,
+    other_versions_using,
+    remove_log_files,
+    retire_tables_naming,
+    shared_locations,
+)
 from nuav2.nuscenes_db.scene_names import SceneNameError
 from nuav2.nuscenes_db.scene_names import scene_names_for as _scene_names
 from nuav2.nuscenes_db.writer import WRITER_FORMAT, WriterOptions, write_log
@@ -305,6 +311,11 @@ def convert_av2(src: Path, out: Path, options: ConvertOptions | None = None) -> 
     out = Path(out)
     logs = find_logs(Path(src))  # a bad SRC fails here, before OUT is created
     refuse_foreign_tables(out / options.version)
+    shared = shared_locations(out, [p.name for p in logs])
+    if shared:
+        raise ConvertError(f"logs {' and '.join(shared[0])} would share one map location (their ids begin "
+                           f"with the same 8 hex digits) and overwrite each other's map: convert them "
+                           f"into different OUTs")
     created = not out.exists()
     prepare_output_dir(out)
     fingerprint = options.fingerprint()

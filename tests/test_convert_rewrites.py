@@ -8,7 +8,7 @@ import json
 import shutil
 from pathlib import Path
 
-from e2e_helpers import VERSION, cli, convert
+from e2e_helpers import FIXTURE_ID, VERSION, cli, convert
 
 pytest_plugins = ["test_writer_support", "e2e_support"]
 
@@ -82,3 +82,27 @@ def test_a_badly_named_log_and_a_log_without_poses_fail_alone(synth_log: Path, t
     assert [f["log_id"] for f in report["failed"]] == sorted(failed)
     assert f"failed: {badly_named}: ValueError" in err
     _validates(out)
+
+
+def test_logs_whose_ids_would_share_a_map_location_are_refused(synth_log: Path, tmp_path: Path):
+    """A map location holds 8 hex digits of the log id: two logs beginning alike would overwrite
+    each other's map files; ids that are not AV2's (``run1``, ``run2``) get 8 digits of a hash."""
+    from nuav2.nuscenes_db.map_frame import location_for
+
+    assert location_for("PIT", FIXTURE_ID) == "av2-pit-adcf7d18"
+    assert location_for("PIT", "run1") != location_for("PIT", "run2")
+    alike = ["0badc0de-0000-0000-0000-000000000001", "0badc0de-0000-0000-0000-000000000002"]
+    split = tmp_path / "src" / "train"
+    _copy_split(synth_log, split, *alike)
+    code, _, err = cli("convert", "av2", split, tmp_path / "out", "--no-progress")
+    assert code == 2 and len(err.strip().splitlines()) == 1, err
+    assert f"logs {alike[0]} and {alike[1]} would share one map location" in err
+    assert not (tmp_path / "out").exists()
+    first = tmp_path / "out2"
+    shutil.rmtree(split / alike[1])
+    convert(split, first)  # one at a time into one OUT: the second is refused too
+    shutil.rmtree(split / alike[0])
+    _copy_split(synth_log, tmp_path / "src2" / "train", alike[1])
+    code, _, err = cli("convert", "av2", tmp_path / "src2" / "train", first, "--no-progress")
+    assert code == 2 and f"logs {alike[0]} and {alike[1]} would share" in err, err
+    _validates(first)

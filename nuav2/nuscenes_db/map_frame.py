@@ -15,6 +15,7 @@ thousand pixels wide however many logs a city split has. True city coordinates a
 
 from __future__ import annotations
 
+import hashlib
 import re
 from dataclasses import dataclass
 
@@ -56,10 +57,16 @@ class MapFrame:
         return np.asarray(xy_global, dtype=np.float64)[..., :2] + self.city_offset[:2]
 
 
+def location_id(log_id: str) -> str:
+    """The log's part of its map location: an AV2 log id's first 8 hex digits (unique over AV2's
+    logs), else 8 hex digits of the id's hash (``run1`` and ``run2`` must not share a map)."""
+    head = log_id.lower()[:8]
+    return head if re.fullmatch(r"[0-9a-f]{8}", head) else hashlib.md5(log_id.encode()).hexdigest()[:8]
+
+
 def location_for(city: str, log_id: str) -> str:
     """Map location name of a log, e.g. ``av2-pit-adcf7d18``."""
-    hexid = re.sub(r"[^0-9a-f]", "", log_id.lower())[:8].ljust(8, "0")
-    return f"av2-{city.lower()[:3]}-{hexid}"
+    return f"av2-{city.lower()[:3]}-{location_id(log_id)}"
 
 
 def map_frame_for(city: str, log_id: str, city_xy_points: np.ndarray, ground_z_city: float = 0.0) -> MapFrame:

@@ -15,6 +15,7 @@ from pathlib import Path
 
 from nuav2.atomic import remove_directory
 from nuav2.nuscenes_db import shards as sh
+from nuav2.nuscenes_db.map_frame import location_id
 from nuav2.nuscenes_db.merge import LOGS_FILE
 
 log = logging.getLogger(__name__)
@@ -80,3 +81,18 @@ def remove_log_files(out: Path, version: str, log_id: str) -> int:
                     f.unlink(missing_ok=True)
                     removed += 1
     return removed
+
+
+def shared_locations(out: Path, log_ids: Iterable[str]) -> list[list[str]]:
+    """Groups of distinct logs (this run's and every shard's in OUT, any version) whose map location
+    would be one name: the later log's map files would overwrite the earlier one's."""
+    names = set(log_ids)
+    root = Path(out) / sh.SHARDS_DIRNAME
+    if root.is_dir():
+        for version in root.iterdir():
+            if version.is_dir():
+                names |= set(sh.existing_shards(out, version.name))
+    groups: dict[str, list[str]] = {}
+    for name in sorted(names):
+        groups.setdefault(location_id(name), []).append(name)
+    return [g for g in groups.values() if len(g) > 1]
