@@ -125,3 +125,24 @@ def test_bounding_radius_follows_in_place_updates():
     assert math.isclose(g.bounding_radius(), 4.0 + 0.3, rel_tol=1e-6)
     assert GaussianSet.empty().bounding_radius() == 0.0
 
+
+
+def test_bounding_radius_follows_the_training_optimizer_step():
+    """Fused Adam updates in place without bumping the version counter the cache is keyed on: the
+    step must bump it, or an object that moved or grew is culled from views that see it."""
+    from nuav2.splat.optimizer import build_optimizer, step_groups_with_grads
+    from nuav2.splat.train import TrainConfig
+
+    scene = two_object_scene()
+    g = scene.objects[0].gaussians
+    before = g.bounding_radius()
+    optimizer = build_optimizer(scene, TrainConfig(), extent=20.0)
+    (group,) = [grp for grp in optimizer.param_groups if grp["params"][0] is g.means]
+    group["lr"] = 1.0
+    for _ in range(5):
+        g.means.grad = torch.tensor([[-1.0, 0.0, 0.0]]).expand_as(g.means).clone()
+        step_groups_with_grads(optimizer)
+    with torch.no_grad():
+        fresh = float((g.means.norm(dim=-1) + 3.0 * g.log_scales.exp().amax(-1)).amax())
+    assert fresh > before + 3.0  # the means moved ~1 m per step
+    assert math.isclose(g.bounding_radius(), fresh, rel_tol=1e-6)

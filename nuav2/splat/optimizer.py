@@ -10,6 +10,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 import torch
+from torch.autograd.graph import increment_version
 
 from nuav2.splat.scene_model import GaussianSet, SplatScene
 
@@ -78,6 +79,9 @@ def step_groups_with_grads(optimizer: torch.optim.Optimizer) -> None:
         optimizer.step()
     finally:
         optimizer.param_groups = every
-    for g in with_grads:
-        for p in g["params"]:
-            p.grad = None
+    stepped = [p for g in with_grads for p in g["params"] if p.grad is not None]
+    # fused Adam writes in place without bumping the version counter, which caches keyed on it
+    # (GaussianSet.bounding_radius, for the view culling) rely on
+    increment_version(stepped)
+    for p in stepped:
+        p.grad = None

@@ -105,7 +105,8 @@ class GaussianSet:
 
     def bounding_radius(self) -> float:
         """Radius about the set's origin holding every Gaussian's 3-sigma sphere (0 when empty);
-        cached until the means or scales change (an optimizer step bumps their version)."""
+        cached until the means or scales change their version (``step_groups_with_grads`` bumps it:
+        fused Adam does not)."""
         m, s = self.means, self.log_scales
         b = self._bound
         if not (b and b[0] is m and b[1] == m._version and b[2] is s and b[3] == s._version):
