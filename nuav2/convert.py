@@ -28,6 +28,7 @@ from nuav2.nuscenes_db.images import IMAGE_LINKS, NativeImages
 from nuav2.nuscenes_db.merge import LOGS_FILE, merge_shards
 from nuav2.nuscenes_db.rewrites import (
     DATA_DIRS,
+    files_other_versions_use,
     other_versions_using,
     remove_log_files,
     retire_tables_naming,
@@ -276,7 +277,9 @@ def convert_one_log(log_dir: Path, dataroot: Path, options: ConvertOptions,
         sh.retire_shard(sh.shard_dir(dataroot, options.version, log_dir.name))
         shard = write_log(scene, out_rig, images, Path(dataroot),
                           WriterOptions(keyframe_hz=options.keyframe_hz,
-                                        show_progress=options.show_progress and options.workers == 1))
+                                        show_progress=options.show_progress and options.workers == 1,
+                                        keep_on_failure=files_other_versions_use(
+                                            Path(dataroot), options.version, log_dir.name)))
         quality = getattr(images, "by_file", None)
         if quality:
             shard.meta["image_quality"] = dict(sorted(quality.items()))

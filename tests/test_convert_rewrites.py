@@ -106,3 +106,17 @@ def test_logs_whose_ids_would_share_a_map_location_are_refused(synth_log: Path, 
     code, _, err = cli("convert", "av2", tmp_path / "src2" / "train", first, "--no-progress")
     assert code == 2 and f"logs {alike[0]} and {alike[1]} would share" in err, err
     _validates(first)
+
+
+def test_a_failed_attempt_in_one_version_keeps_the_files_another_version_uses(synth_log: Path,
+                                                                               tmp_path: Path):
+    (log_dir,) = _copy_split(synth_log, tmp_path / "src" / "train", synth_log.name)
+    out = tmp_path / "out"
+    convert(log_dir.parent, out)
+    convert(log_dir.parent, out, "--version", "v1.0-other")  # same options: the same files
+    shutil.rmtree(out / ".nuav2_shards" / "v1.0-other" / log_dir.name)  # so the log is written again
+    bad = sorted((log_dir / "sensors" / "cameras" / "ring_front_left").iterdir())[0]
+    bad.write_bytes(bad.read_bytes()[:100])
+    code, _, err = cli("convert", "av2", log_dir.parent, out, "--version", "v1.0-other", "--no-progress")
+    assert code == 2 and "no log converted" in err, err
+    _validates(out)  # the failed attempt removed none of the files VERSION's tables name

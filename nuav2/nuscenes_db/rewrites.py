@@ -57,15 +57,21 @@ def retire_tables_naming(folder: Path, rewritten: Iterable[str]) -> list[str]:
     return hit
 
 
-def remove_log_files(out: Path, version: str, log_id: str) -> int:
-    """Remove a failed log's data files (and temp files a killed worker left beside them), except
-    those another version's complete shard still lists; returns how many were removed."""
+def files_other_versions_use(out: Path, version: str, log_id: str) -> frozenset[str]:
+    """Dataroot-relative data files of ``log_id`` that another version's complete shard lists."""
     keep: set[str] = set()
     root = Path(out) / sh.SHARDS_DIRNAME
     if root.is_dir():
         for other in root.iterdir():
             if other.is_dir() and other.name != version and (other / log_id / sh.META_FILE).is_file():
                 keep |= sh.data_files(other / log_id)
+    return frozenset(keep)
+
+
+def remove_log_files(out: Path, version: str, log_id: str) -> int:
+    """Remove a failed log's data files (and temp files a killed worker left beside them), except
+    those another version's complete shard still lists; returns how many were removed."""
+    keep = files_other_versions_use(out, version, log_id)
     removed = 0
     for top in DATA_DIRS:
         base = Path(out) / top

@@ -61,6 +61,9 @@ class WriterOptions:
     keyframe_hz: float | None = None  # None: every sweep with all cameras is a sample
     key_image_tolerance_ns: int = KEY_IMAGE_TOLERANCE_NS
     show_progress: bool = True
+    # dataroot-relative files a failed attempt must not remove: the same log's files that another
+    # --version's tables use (same names, rewritten with the same bytes)
+    keep_on_failure: frozenset[str] = frozenset()
 
 
 @dataclass
@@ -118,8 +121,9 @@ def data_filename(log_id: str, channel: str, timestamp_us: int, is_key_frame: bo
 class _Files:
     """Data files written for one log, removed again if the log fails half-way."""
 
-    def __init__(self, dataroot: Path) -> None:
+    def __init__(self, dataroot: Path, keep: frozenset[str] = frozenset()) -> None:
         self.dataroot = dataroot
+        self.keep = {dataroot / rel for rel in keep}
         self.written: list[Path] = []
 
     def path(self, rel: str) -> Path:
@@ -130,7 +134,7 @@ class _Files:
 
     def remove_all(self) -> None:
         for p in self.written:
-            if p.is_file() or p.is_symlink():
+            if p not in self.keep and (p.is_file() or p.is_symlink()):
                 p.unlink()
 
 
@@ -138,7 +142,7 @@ def write_log(scene: SceneLog, out_rig: Rig, images: ImageSource, dataroot: Path
               options: WriterOptions | None = None) -> LogShard:
     """Write one log's data files under ``dataroot`` and return its records (see module doc)."""
     options = options or WriterOptions()
-    files = _Files(Path(dataroot))
+    files = _Files(Path(dataroot), options.keep_on_failure)
     try:
         return _write_log(scene, out_rig, images, files, options)
     except BaseException:
