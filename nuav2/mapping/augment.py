@@ -8,7 +8,8 @@ axis: ``lidar2img`` becomes ``lidar2img @ F`` with ``F = diag(sx, sy, 1, 1)``, s
 ray lands on the mirrored 3-D points (same pixel, same depth), and the GT polylines and the BEV
 target are mirrored with it; the images, their perspective-view and depth targets are unchanged.
 The patch is symmetric, so nothing leaves it. Four mirror images of every keyframe keep a small
-training set from being memorised as a map prior.
+training set from being memorised as a map prior. One mirrored axis reverses a ring's direction, so
+rings are re-reversed: MapTR's GT rings are clockwise and their targets only cyclic shifts.
 """
 
 from __future__ import annotations
@@ -41,7 +42,10 @@ def mirror(batch: dict, signs: torch.Tensor) -> dict:
     shifts = []
     for b, s in enumerate(batch["gt_shifts"]):
         real = s > PAD_VALUE / 2
-        shifts.append(torch.where(real, s * signs[b].to(s.dtype), s))
+        m = torch.where(real, s * signs[b].to(s.dtype), s)
+        if signs[b, 0] * signs[b, 1] < 0 and len(m):
+            m = _rings_clockwise_again(m, real)
+        shifts.append(m)
     out["gt_shifts"] = shifts
     bev = batch["bev_target"].clone()
     for b in range(B):
@@ -49,6 +53,18 @@ def mirror(batch: dict, signs: torch.Tensor) -> dict:
         if dims:
             bev[b] = bev[b].flip(dims)
     out["bev_target"] = bev
+    return out
+
+
+def _rings_clockwise_again(shifts: torch.Tensor, real: torch.Tensor) -> torch.Tensor:
+    """One mirrored axis turns every ring anticlockwise, while the GT's rings (crossings, closed
+    boundaries) are clockwise and their ordering variants only cyclic shifts: reverse the rings'
+    points so the same shape keeps the same targets (open lines carry both directions already,
+    centerlines keep their driving order)."""
+    first, last = shifts[:, 0, 0], shifts[:, 0, -1]
+    ring = real[:, 0, 0].all(-1) & ((first - last).abs().amax(-1) <= 1e-4)
+    out = shifts.clone()
+    out[ring] = shifts[ring].flip(-2)
     return out
 
 
