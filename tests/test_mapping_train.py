@@ -128,6 +128,18 @@ def test_predictions_are_scored_by_nuav2_eval_as_in_process(truth_db, tmp_path):
         assert cli["ap"][c] == pytest.approx(here["ap"][c], abs=1e-6)
 
 
+def test_nuav2_eval_cuts_the_gt_at_the_model_s_patch(truth_db, tmp_path):
+    """The model's own GT, exported as predictions, scores 1.0 through nuav2 eval at a patch other
+    than the default (the GT used to be cut at 60 x 30 m whatever the model's patch)."""
+    patch = (40.0, 20.0)
+    gts = gt_vectors_for_split(truth_db, VERSION, SPLIT, patch=patch)
+    preds = {tok: [(c, p, 0.9) for c, p in vecs] for tok, vecs in gts.items()}
+    path = write_results(tmp_path / "pred.json", preds, SMALL.classes)
+    present = [c for c in SMALL.classes if any(c == v[0] for vecs in gts.values() for v in vecs)]
+    cli = score_with_nuav2_eval(path, truth_db, VERSION, SPLIT, present, tmp_path / "eval.json", patch=patch)
+    assert cli["mAP"] == pytest.approx(1.0)
+
+
 def test_one_to_many_queries_train_only_and_never_see_the_others():
     from nuav2.mapping import MapModel
 

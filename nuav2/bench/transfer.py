@@ -118,7 +118,8 @@ def run_and_score(
                 run_dir / pred_file, preds, cfg.model.classes, {"run": name, "decoding": decoding}
             )
             result = score_with_nuav2_eval(
-                pred_path, test.dataroot, cfg.version, test.split, cfg.model.classes, eval_path
+                pred_path, test.dataroot, cfg.version, test.split, cfg.model.classes, eval_path,
+                patch=cfg.model.patch,
             )
             result["run_fingerprint"] = info["fingerprint"]
             torch.set_num_threads(tcfg.threads)  # nuav2 eval's numba kernels reset it (see mapping.train)

@@ -165,9 +165,11 @@ def score_with_nuav2_eval(
     split: str,
     classes: Sequence[str],
     out_path: str | Path,
+    patch: tuple[float, float] = (60.0, 30.0),
 ) -> dict:
-    """Run ``nuav2 eval PRED --dataroot D --version V --split S --classes ... --out OUT`` in this process
-    (its printed table is captured) and return the result it wrote."""
+    """Run ``nuav2 eval PRED --dataroot D --version V --split S --classes ... --patch F R --out OUT`` in
+    this process (its printed table is captured) and return the result it wrote. ``patch``: the
+    model's (forward, right) metres, so the GT is cut where the predictions live."""
     from nuav2.cli import main
 
     argv = [
@@ -181,6 +183,9 @@ def score_with_nuav2_eval(
         split,
         "--classes",
         *classes,
+        "--patch",
+        str(patch[0]),
+        str(patch[1]),
         "--out",
         str(out_path),
         "--json",
