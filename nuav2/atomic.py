@@ -64,8 +64,7 @@ def atomic_directory(final: str | Path) -> Iterator[Path]:
         os.chmod(tmp, dir_mode())
         yield tmp
         if final.exists():
-            old = Path(tempfile.mkdtemp(prefix=f".{final.name}.", suffix=".old", dir=final.parent))
-            _replace(final, old)
+            old = _move_aside(final)
             _replace(tmp, final)
             _remove_or_warn(old)
         else:
@@ -87,10 +86,14 @@ def _replace(src: Path, dst: Path) -> None:
 def remove_directory(path: str | Path) -> None:
     """Take ``path`` away at once (renamed aside under a hidden name, then removed), so a reader
     sees the whole folder or none of it, never a half-deleted one."""
-    path = Path(path)
+    _remove_or_warn(_move_aside(Path(path)))
+
+
+def _move_aside(path: Path) -> Path:
+    """Rename ``path`` to a fresh hidden ``.old`` name beside it (a fixed name could collide)."""
     old = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".old", dir=path.parent))
     _replace(path, old)
-    _remove_or_warn(old)
+    return old
 
 
 def _remove_or_warn(path: Path) -> None:

@@ -28,7 +28,6 @@ from nuav2.nuscenes_db.images import IMAGE_LINKS, NativeImages
 from nuav2.nuscenes_db.merge import LOGS_FILE, merge_shards
 from nuav2.nuscenes_db.rewrites import (
     DATA_DIRS,
-    files_other_versions_use,
     other_versions_using,
     remove_log_files,
     retire_tables_naming,
@@ -278,7 +277,7 @@ def convert_one_log(log_dir: Path, dataroot: Path, options: ConvertOptions,
         shard = write_log(scene, out_rig, images, Path(dataroot),
                           WriterOptions(keyframe_hz=options.keyframe_hz,
                                         show_progress=options.show_progress and options.workers == 1,
-                                        keep_on_failure=files_other_versions_use(
+                                        keep_on_failure=sh.files_other_versions_list(
                                             Path(dataroot), options.version, log_dir.name)))
         quality = getattr(images, "by_file", None)
         if quality:

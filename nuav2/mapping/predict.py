@@ -22,6 +22,7 @@ from nuav2.atomic import atomic_write_json
 from nuav2.mapping.config import MapModelConfig
 from nuav2.mapping.data import MapTensors
 from nuav2.mapping.losses import denormalise_points
+from nuav2.maptr.vectorize import DEFAULT_PATCH
 
 TOP_K = 50  # MapTR's max predictions per sample
 # cell probability above which the BEV segmentation counts as a line when traced into vectors: chosen
@@ -165,7 +166,7 @@ def score_with_nuav2_eval(
     split: str,
     classes: Sequence[str],
     out_path: str | Path,
-    patch: tuple[float, float] = (60.0, 30.0),
+    patch: tuple[float, float] = DEFAULT_PATCH,
 ) -> dict:
     """Run ``nuav2 eval PRED --dataroot D --version V --split S --classes ... --patch F R --out OUT`` in
     this process (its printed table is captured) and return the result it wrote. ``patch``: the

@@ -25,12 +25,11 @@ DATA_DIRS = ("samples", "sweeps")
 def other_versions_using(out: Path, version: str, fingerprint: str, rewritten: Iterable[str]) -> list[str]:
     """``version/log`` for each log this run rewrites that another version in OUT holds converted
     with other options: rewriting would change the images under that version's tables."""
-    root = Path(out) / sh.SHARDS_DIRNAME
-    if not root.is_dir():
-        return []
     rewritten = set(rewritten)
     clashes = []
-    for other in sorted(p.name for p in root.iterdir() if p.is_dir() and p.name != version):
+    for other in sh.shard_versions(out):
+        if other == version:
+            continue
         for log_id, path in sh.existing_shards(out, other).items():
             if log_id in rewritten and not sh.is_complete(path, fingerprint):
                 clashes.append(f"{other}/{log_id}")
@@ -57,21 +56,10 @@ def retire_tables_naming(folder: Path, rewritten: Iterable[str]) -> list[str]:
     return hit
 
 
-def files_other_versions_use(out: Path, version: str, log_id: str) -> frozenset[str]:
-    """Dataroot-relative data files of ``log_id`` that another version's complete shard lists."""
-    keep: set[str] = set()
-    root = Path(out) / sh.SHARDS_DIRNAME
-    if root.is_dir():
-        for other in root.iterdir():
-            if other.is_dir() and other.name != version and (other / log_id / sh.META_FILE).is_file():
-                keep |= sh.data_files(other / log_id)
-    return frozenset(keep)
-
-
 def remove_log_files(out: Path, version: str, log_id: str) -> int:
     """Remove a failed log's data files (and temp files a killed worker left beside them), except
-    those another version's complete shard still lists; returns how many were removed."""
-    keep = files_other_versions_use(out, version, log_id)
+    those the log's shard in another version still lists; returns how many were removed."""
+    keep = sh.files_other_versions_list(out, version, log_id)
     removed = 0
     for top in DATA_DIRS:
         base = Path(out) / top
@@ -93,11 +81,8 @@ def shared_locations(out: Path, log_ids: Iterable[str]) -> list[list[str]]:
     """Groups of distinct logs (this run's and every shard's in OUT, any version) whose map location
     would be one name: the later log's map files would overwrite the earlier one's."""
     names = set(log_ids)
-    root = Path(out) / sh.SHARDS_DIRNAME
-    if root.is_dir():
-        for version in root.iterdir():
-            if version.is_dir():
-                names |= set(sh.existing_shards(out, version.name))
+    for version in sh.shard_versions(out):
+        names |= set(sh.existing_shards(out, version))
     groups: dict[str, list[str]] = {}
     for name in sorted(names):
         groups.setdefault(location_id(name), []).append(name)

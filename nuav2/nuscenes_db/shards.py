@@ -67,12 +67,25 @@ def data_files(path: Path) -> set[str]:
         return set()
 
 
+def shard_versions(dataroot: Path) -> list[str]:
+    """The versions that have a shard folder in ``dataroot``, sorted."""
+    root = Path(dataroot) / SHARDS_DIRNAME
+    return sorted(p.name for p in root.iterdir() if p.is_dir()) if root.is_dir() else []
+
+
+def files_other_versions_list(dataroot: Path, version: str, log_id: str) -> frozenset[str]:
+    """Data files of ``log_id`` that its shard in another version lists: data file names do not
+    depend on the version, so those files are shared and must stay."""
+    listed: set[str] = set()
+    for other in shard_versions(dataroot):
+        if other != version:
+            listed |= data_files(shard_root(dataroot, other) / log_id)
+    return frozenset(listed)
+
+
 def _remove_stale_files(path: Path, stale: set[str]) -> None:
-    root = Path(path).parent.parent  # OUT/.nuav2_shards
-    for other_version in root.iterdir():
-        if other_version != Path(path).parent:
-            stale -= data_files(other_version / Path(path).name)
-    dataroot = root.parent
+    dataroot = Path(path).parent.parent.parent  # OUT/.nuav2_shards/<version>/<log id>
+    stale -= files_other_versions_list(dataroot, Path(path).parent.name, Path(path).name)
     for rel in sorted(stale):
         with contextlib.suppress(FileNotFoundError):
             (dataroot / rel).unlink()
