@@ -76,11 +76,24 @@ def atomic_directory(final: str | Path) -> Iterator[Path]:
 
 
 def _replace(src: Path, dst: Path) -> None:
-    """``os.replace``; an error names ``dst`` (the user's path), not the hidden temp name."""
+    """``os.replace``, then an fsync of the folder so the rename itself survives a power loss; an
+    error names ``dst`` (the user's path), not the hidden temp name."""
     try:
         os.replace(src, dst)
     except OSError as e:
         raise OSError(e.errno, f"{e.strerror} (replacing it with {src.name})", str(dst)) from None
+    fsync_directory(dst.parent)
+
+
+def fsync_directory(path: Path) -> None:
+    """Flush a folder's entries (renames, new names) to disk; best effort, since some file systems
+    and Windows cannot open a folder for fsync (about 0.1 ms on ext4)."""
+    with contextlib.suppress(OSError):
+        fd = os.open(path, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
 
 
 def remove_directory(path: str | Path) -> None:

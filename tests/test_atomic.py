@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+import stat
 from pathlib import Path
 
 import pytest
@@ -37,3 +39,27 @@ def test_a_failed_rename_names_the_target_and_leaves_no_temp_file(tmp_path: Path
         (tmp / "x").write_text("x")
         raise RuntimeError("the writer failed")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out.json"]
+
+
+def test_each_rename_is_made_durable_by_an_fsync_of_its_folder(tmp_path: Path, monkeypatch):
+    """A rename lives in the folder's entries: without an fsync of the folder a power loss can
+    bring back the old file (or no file) even though the new one's bytes were flushed."""
+    synced: list[tuple[int, int]] = []
+    real_fsync = os.fsync
+
+    def recording_fsync(fd: int) -> None:
+        st = os.fstat(fd)
+        if stat.S_ISDIR(st.st_mode):
+            synced.append((st.st_dev, st.st_ino))
+        real_fsync(fd)
+
+    monkeypatch.setattr(os, "fsync", recording_fsync)
+    sub = tmp_path / "tables"
+    atomic_write_bytes(sub / "scene.json", b"[]")
+    folder = os.stat(sub)
+    assert (folder.st_dev, folder.st_ino) in synced
+    synced.clear()
+    with atomic_directory(tmp_path / "shard") as d:
+        (d / "x").write_bytes(b"1")
+    parent = os.stat(tmp_path)
+    assert (parent.st_dev, parent.st_ino) in synced

@@ -13,13 +13,13 @@ from __future__ import annotations
 import hashlib
 import logging
 import math
-import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import torch
 
+from nuav2.atomic import atomic_file
 from nuav2.mapping.config import MapModelConfig, fingerprint
 from nuav2.mapping.targets import bev_targets, depth_targets, pv_targets
 
@@ -205,8 +205,6 @@ def load_map_tensors(
         else [],
     )
     if cache is not None:
-        cache.parent.mkdir(parents=True, exist_ok=True)
-        tmp = cache.with_name(f".{cache.name}.{os.getpid()}.tmp")
-        torch.save(data, tmp)
-        os.replace(tmp, cache)
+        with atomic_file(cache) as f:
+            torch.save(data, f)
     return data

@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from nuav2.atomic import atomic_write_json
+from nuav2.atomic import atomic_file, atomic_write_json
 from nuav2.mapping.augment import bev_flip, photometric, random_rotation
 from nuav2.mapping.config import MapModelConfig, TrainConfig, fingerprint
 from nuav2.mapping.data import MapTensors
@@ -66,9 +66,9 @@ def run_fingerprint(
 
 
 def _save_atomic(obj, path: Path) -> None:
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    torch.save(obj, tmp)
-    os.replace(tmp, path)
+    """torch.save through a temp file: a killed save leaves neither a torn checkpoint nor a temp file."""
+    with atomic_file(path) as f:
+        torch.save(obj, f)
 
 
 def load_model(run_dir: str | Path) -> MapModel:
