@@ -34,8 +34,6 @@ imported, or at once if it already is. Installing twice is harmless.
 """
 
 import collections
-import hashlib
-import importlib.abc
 import os
 import re
 import sys
@@ -50,6 +48,8 @@ def is_av2_location(name):
 
 def semantic_prior_filename(location):
     """Dataroot-relative mask PNG of a location (= nuav2.nuscenes_db.map_mask.semantic_prior_filename)."""
+    import hashlib  # here, not at start-up (the .pth hook loads this file in every interpreter)
+
     return "maps/" + hashlib.md5(location.encode()).hexdigest() + ".png"
 
 
@@ -202,8 +202,10 @@ PATCHERS = {
 }
 
 
-class _PatchingLoader(importlib.abc.Loader):
-    """Delegates to the real loader, then applies the module's patch."""
+class _PatchingLoader:
+    """Delegates to the real loader, then applies the module's patch (a plain class, as the import
+    system only calls ``create_module`` / ``exec_module``: importing ``importlib.abc`` cost ~20 ms
+    at every interpreter start-up where the .pth hook is installed)."""
 
     def __init__(self, inner, patcher):
         self._inner, self._patcher = inner, patcher
@@ -218,8 +220,9 @@ class _PatchingLoader(importlib.abc.Loader):
         self._patcher(module)
 
 
-class PostImportHook(importlib.abc.MetaPathFinder):
-    """Finds the devkit modules through the other finders and wraps their loader."""
+class PostImportHook:
+    """Finds the devkit modules through the other finders and wraps their loader (a meta path finder
+    needs only ``find_spec``)."""
 
     _nuav2_hook = True  # marks every copy of this hook, however this file was loaded
 
