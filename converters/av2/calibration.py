@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from converters.av2.errors import AV2LogError
-from converters.av2.feather import read_columns, require_finite
+from converters.av2.feather import INTEGER, NUMBER, TEXT, read_columns, require_finite
 from nuav2.geometry import T_to_quat_trans
 from nuav2.rig import CameraSpec, Rig, RigSpecError, load_rig, rig_from_dict
 
@@ -23,7 +23,9 @@ log = logging.getLogger(__name__)
 EXTRINSICS_FILE = "egovehicle_SE3_sensor.feather"
 INTRINSICS_FILE = "intrinsics.feather"
 POSE_COLUMNS = ("qw", "qx", "qy", "qz", "tx_m", "ty_m", "tz_m")
-INTRINSIC_COLUMNS = ("fx_px", "fy_px", "cx_px", "cy_px", "height_px", "width_px")
+# Image sizes are integers (uint16 in AV2): a float size would be truncated silently.
+INTRINSIC_COLUMNS = {"fx_px": NUMBER, "fy_px": NUMBER, "cx_px": NUMBER, "cy_px": NUMBER,
+                     "height_px": INTEGER, "width_px": INTEGER}
 # Calibration quaternions are stored as float64 from a unit quaternion; anything further off is corrupt.
 QUAT_NORM_TOL = 1e-3
 
@@ -51,9 +53,9 @@ def rig_from_calibration(calibration_dir: Path, channels: list[str] | None = Non
     """
     ext_path = calibration_dir / EXTRINSICS_FILE
     int_path = calibration_dir / INTRINSICS_FILE
-    ext = read_columns(ext_path, ("sensor_name", *POSE_COLUMNS))
+    ext = read_columns(ext_path, {"sensor_name": TEXT, **dict.fromkeys(POSE_COLUMNS, NUMBER)})
     require_finite(ext_path, ext, POSE_COLUMNS)
-    intr = read_columns(int_path, ("sensor_name", *INTRINSIC_COLUMNS))
+    intr = read_columns(int_path, {"sensor_name": TEXT, **INTRINSIC_COLUMNS})
     require_finite(int_path, intr, INTRINSIC_COLUMNS)
     template = load_rig("av2")
     template_cams = {c.channel: c for c in template.cameras}

@@ -6,7 +6,7 @@ import logging
 import re
 from pathlib import Path
 
-from converters.av2.errors import AV2LogError
+from converters.av2.errors import AV2LogError, require_file
 from nuav2.scene import CameraFrame
 
 log = logging.getLogger(__name__)
@@ -27,7 +27,8 @@ def list_camera_frames(log_dir: Path, channels: list[str],
         if cam_dir.is_dir():
             for p in cam_dir.iterdir():
                 m = IMAGE_NAME_RE.match(p.name)
-                if m and p.is_file():
+                if m:
+                    require_file(p)  # a dangling link or a directory fails the log, as a bad JPEG does
                     found.append(CameraFrame(ch, int(m.group(1)), p))
                 else:
                     stray.append(p.name)

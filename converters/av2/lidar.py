@@ -8,15 +8,15 @@ from pathlib import Path
 
 import numpy as np
 
-from converters.av2.errors import AV2LogError
-from converters.av2.feather import read_columns
+from converters.av2.errors import AV2LogError, require_file
+from converters.av2.feather import INTEGER, NUMBER, read_columns
 from nuav2.scene import LidarPoints, LidarSweepRef
 
 log = logging.getLogger(__name__)
 
 LIDAR_DIR = Path("sensors") / "lidar"
 SWEEP_NAME_RE = re.compile(r"^(\d+)\.feather$")
-SWEEP_COLUMNS = ("x", "y", "z", "intensity", "laser_number")
+SWEEP_COLUMNS = {"x": NUMBER, "y": NUMBER, "z": NUMBER, "intensity": NUMBER, "laser_number": INTEGER}
 
 
 def list_sweeps(log_dir: Path) -> list[LidarSweepRef]:
@@ -27,7 +27,8 @@ def list_sweeps(log_dir: Path) -> list[LidarSweepRef]:
     sweeps, stray = [], []
     for p in lidar_dir.iterdir():
         m = SWEEP_NAME_RE.match(p.name)
-        if m and p.is_file():
+        if m:
+            require_file(p)  # named right but unreadable (dangling link, directory): fails the log
             sweeps.append(LidarSweepRef(int(m.group(1)), p))
         else:
             stray.append(p.name)

@@ -8,13 +8,14 @@ from pathlib import Path
 import numpy as np
 
 from converters.av2.errors import AV2LogError
-from converters.av2.feather import read_columns, require_finite
+from converters.av2.feather import INTEGER, NUMBER, read_columns, require_finite
 from nuav2.geometry import F64, T_from_quat_trans
 
 log = logging.getLogger(__name__)
 
 POSE_FILE = "city_SE3_egovehicle.feather"
-POSE_COLUMNS = ("timestamp_ns", "qw", "qx", "qy", "qz", "tx_m", "ty_m", "tz_m")
+POSE_FLOAT_COLUMNS = ("qw", "qx", "qy", "qz", "tx_m", "ty_m", "tz_m")
+POSE_COLUMNS = {"timestamp_ns": INTEGER, **dict.fromkeys(POSE_FLOAT_COLUMNS, NUMBER)}
 # Duplicated timestamps whose poses differ by more than this are reported (the first row is kept).
 DUPLICATE_POSE_TOL = 1e-6
 
@@ -27,7 +28,7 @@ def read_pose_table(log_dir: Path) -> tuple[np.ndarray, F64]:
     """
     path = log_dir / POSE_FILE
     cols = read_columns(path, POSE_COLUMNS)
-    require_finite(path, cols, POSE_COLUMNS[1:])
+    require_finite(path, cols, POSE_FLOAT_COLUMNS)
     ts = np.asarray(cols["timestamp_ns"], dtype=np.int64)
     if len(ts) == 0:
         raise AV2LogError(path, "pose table is empty")

@@ -145,6 +145,16 @@ def annotation_records(log_id: str, boxes: KeyBoxes,
         raise ValueError(f"log {log_id}: LiDAR point counts were not filled in before writing annotations")
     ann_tokens = [make_token(log_id, "sample_annotation", f"{tr}@{sample_tokens[s]}")
                   for tr, s in zip(boxes.track_id, boxes.sample_index)]
+    if len(set(ann_tokens)) != len(ann_tokens):
+        first: dict[str, int] = {}
+        for k, tok in enumerate(ann_tokens):
+            if tok in first:
+                rows = (int(boxes.rows[first[tok]]), int(boxes.rows[k]))
+                sample = sample_tokens[int(boxes.sample_index[k])]
+                raise ValueError(f"log {log_id}: track {boxes.track_id[k]!r} has two boxes (annotation rows "
+                                 f"{rows[0]} and {rows[1]}) at sample {sample}; "
+                                 "they would be two sample_annotation records with one token")
+            first[tok] = k
     q_wxyz = rot_to_quat(boxes.global_T_box[:, :3, :3]) if len(boxes) else np.zeros((0, 4))
     instances: list[dict] = []
     anns: list[dict] = []
