@@ -239,3 +239,37 @@ def test_prediction_rasterizer_draws_the_agents_map(db: Path, nusc):
     drivable = np.all(layers == 255, axis=2).mean()  # drivable_area is drawn white
     assert 0.05 < drivable < 0.95
     assert len(static.maps.names) == len(nusc.log) and set(static.maps) <= set(static.maps.names)
+
+
+def test_prediction_helper_past_and_future_cover_the_seconds_asked(db: Path, nusc):
+    """The devkit caps a past / future at 2 annotations a second (nuScenes' keyframe rate); nuAV2 keys
+    every 10 Hz sweep by default, where ``seconds=0.3`` returned nothing (int(2 x 0.3) = 0) and
+    ``seconds=1`` 0.2 s of history before the hook."""
+    from nuscenes.prediction import PredictHelper
+
+    helper, seconds, checked = PredictHelper(nusc), 0.3, 0
+    for ann in nusc.sample_annotation:
+        sample = nusc.get("sample", ann["sample_token"])
+        scene = nusc.get("scene", sample["scene_token"])
+        first, last = (nusc.get("sample", scene[k])["timestamp"]
+                       for k in ("first_sample_token", "last_sample_token"))
+        if scene["nbr_samples"] < 2:
+            continue
+        tolerance = min(0.15, 0.5 * (last - first) / 1e6 / (scene["nbr_samples"] - 1))  # half a period
+        for direction, get in (("prev", helper.get_past_for_agent), ("next", helper.get_future_for_agent)):
+            chain, rec = [], ann
+            while rec[direction]:
+                rec = nusc.get("sample_annotation", rec[direction])
+                t_us = nusc.get("sample", rec["sample_token"])["timestamp"]
+                chain.append(abs(t_us - sample["timestamp"]) / 1e6)
+            if not chain or chain[-1] < seconds:
+                continue  # the track does not last that long this way
+            got = get(ann["instance_token"], ann["sample_token"], seconds=seconds, in_agent_frame=False,
+                      just_xy=False)
+            assert len(got) == sum(dt < seconds + tolerance for dt in chain), direction
+            span = abs(nusc.get("sample", got[-1]["sample_token"])["timestamp"] - sample["timestamp"]) / 1e6
+            assert seconds - tolerance <= span < seconds + tolerance, (direction, span)
+            checked += 1
+    if max(s["nbr_samples"] for s in nusc.scene) < 4:
+        pytest.skip("no scene has 4 samples (the real fixture ships one sweep): no track spans 0.3 s")
+    assert checked > 0

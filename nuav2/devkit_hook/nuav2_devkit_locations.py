@@ -27,10 +27,13 @@ The registration patches, in memory only (the devkit on disk is untouched):
    name; on a dataroot whose ``log`` table names nuAV2 locations it returns a mapping that opens
    a location's map when the rasterizer first asks for it (a few most recent kept open: a full
    conversion has one location per log).
+6. ``PredictHelper``'s past / future stops at 2 annotations a second, nuScenes' keyframe rate; in a
+   nuAV2 scene keyed faster (every 10 Hz sweep by default) the cap follows the scene's sample rate.
 
 Importing the devkit costs seconds, so nothing is imported eagerly: a post-import hook applies
-each patch when ``nuscenes.map_expansion.map_api`` / ``bitmap`` or ``descartes.patch`` is first
-imported, or at once if it already is. Installing twice is harmless.
+each patch when its module (``nuscenes.map_expansion.map_api``, ``bitmap``, ``descartes.patch``,
+``nuscenes.prediction.helper``, ...) is first imported, or at once if it already is. Installing
+twice is harmless.
 """
 
 import collections
@@ -194,11 +197,59 @@ def _patch_descartes(patch_module):
     patch_module.PolygonPath = polygon_path
 
 
+def _keyframe_rate(helper, sample_token):
+    """Samples per second of a nuAV2 sample's scene (None for a nuScenes scene, or one sample)."""
+    cache = helper.__dict__.setdefault("_nuav2_keyframe_rates", {})
+    scene_token = helper.data.get("sample", sample_token)["scene_token"]
+    if scene_token not in cache:
+        scene = helper.data.get("scene", scene_token)
+        rate = None
+        location = helper.data.get("log", scene["log_token"])["location"]
+        if is_av2_location(location) and scene["nbr_samples"] > 1:
+            first = helper.data.get("sample", scene["first_sample_token"])["timestamp"]
+            last = helper.data.get("sample", scene["last_sample_token"])["timestamp"]
+            if last > first:
+                rate = (scene["nbr_samples"] - 1) / ((last - first) / 1e6)
+        cache[scene_token] = rate
+    return cache[scene_token]
+
+
+def _patch_prediction_helper(helper_module):
+    """PredictHelper caps a past / future at 2 annotations a second (nuScenes' keyframe rate), so on a
+    nuAV2 database keyed at every 10 Hz sweep ``seconds=1`` gave 0.2 s; here the cap follows the scene's
+    own sample rate (nuScenes scenes, and nuAV2 ones at 2 Hz or less, keep the devkit's code)."""
+    cls = helper_module.PredictHelper
+    devkit_iterate = cls._iterate
+    if getattr(devkit_iterate, _PATCHED, False):
+        return
+
+    def _iterate(self, starting_annotation, seconds, direction):
+        rate = _keyframe_rate(self, starting_annotation["sample_token"]) if seconds > 0 else None
+        if rate is None or rate <= 2.5:
+            return devkit_iterate(self, starting_annotation, seconds, direction)
+        # The devkit's tolerance (BUFFER, 0.15 s) is under half its 0.5 s sample period, and its count cap
+        # keeps the sample after ``seconds`` out; at the scene's rate half a period does both.
+        limit = seconds + min(helper_module.BUFFER, 0.5 / rate)
+        start_us = self._timestamp_for_sample(starting_annotation["sample_token"])
+        found, record = [], starting_annotation
+        while record[direction]:
+            record = self.data.get("sample_annotation", record[direction])
+            t_us = self._timestamp_for_sample(record["sample_token"])
+            if self._absolute_time_diff(t_us, start_us) >= limit:
+                break
+            found.append(record)
+        return found
+
+    setattr(_iterate, _PATCHED, True)
+    cls._iterate = _iterate
+
+
 PATCHERS = {
     "nuscenes.map_expansion.map_api": _patch_map_api,
     "nuscenes.map_expansion.bitmap": _patch_bitmap,
     "descartes.patch": _patch_descartes,
     "nuscenes.prediction.input_representation.static_layers": _patch_static_layers,
+    "nuscenes.prediction.helper": _patch_prediction_helper,
 }
 
 
