@@ -25,6 +25,23 @@ def jpeg_reduction(path: Path, source_size: tuple[int, int] | None, width: int, 
                       and w0 // f >= width and h0 // f >= height])
 
 
+def jpeg_cut_short(path: Path) -> bool:
+    """Whether a JPEG file lacks its end-of-image marker (FF D9) at its end, i.e. was cut short; cv2
+    decodes such a file without an error (the missing rows grey), so warp and render modes check this
+    first. Reads only the file's last bytes; other formats are never "cut short" here."""
+    if Path(path).suffix.lower() not in (".jpg", ".jpeg"):
+        return False
+    try:
+        with open(path, "rb") as f:
+            f.seek(0, 2)
+            size = f.tell()
+            f.seek(max(0, size - 64))
+            tail = f.read()
+    except OSError:
+        return False  # the decoder reports an unreadable file itself
+    return not tail.rstrip(b"\x00").endswith(b"\xff\xd9")
+
+
 def load_image_u8(path: Path, width: int, height: int,
                   source_size: tuple[int, int] | None = None) -> np.ndarray:
     """Read an image file as uint8 RGB, area-resized to width x height (decoded at a reduced size first
@@ -33,6 +50,8 @@ def load_image_u8(path: Path, width: int, height: int,
     bgr = cv2.imread(str(path), _REDUCED_JPEG[f] if f > 1 else cv2.IMREAD_COLOR)
     if bgr is None:
         raise ValueError(f"{path}: camera image missing or unreadable")
+    if jpeg_cut_short(path):
+        raise ValueError(f"{path}: camera image cut short (no JPEG end-of-image marker)")
     if bgr.shape[:2] != (height, width):
         bgr = cv2.resize(bgr, (width, height), interpolation=cv2.INTER_AREA)
     return np.ascontiguousarray(bgr[:, :, ::-1])

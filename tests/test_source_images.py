@@ -87,3 +87,28 @@ def test_an_image_read_for_the_exposure_solve_is_corrected_without_a_second_deco
     assert len(decodes) == n  # each file read once
     v = views[0]
     assert np.array_equal(v.raw_image_u8(), raw[0]) and len(decodes) == n + 1  # later raw reads decode again
+
+
+def test_a_jpeg_cut_short_is_refused_by_the_warp_and_render_readers(quarter_log, tmp_path: Path):
+    """cv2 decodes a truncated JPEG without an error (its missing rows grey); native mode's decode
+    check caught it, warp and render modes converted the grey rows until they checked the end marker."""
+    from nuav2.image_decode import jpeg_cut_short
+    from nuav2.nuscenes_db.images import ImageSourceError
+    from nuav2.warp.provider import read_rgb
+
+    scene = read_log(quarter_log)
+    frame = next(iter(scene.camera_frames.values()))[0]
+    cam = scene.rig.camera(frame.channel)
+    whole = Path(frame.path).read_bytes()
+    assert not jpeg_cut_short(Path(frame.path))
+    cut = tmp_path / "cut.jpg"
+    cut.write_bytes(whole[: len(whole) * 3 // 4])
+    assert jpeg_cut_short(cut)
+    with pytest.raises(ImageSourceError, match="cut.jpg: image cut short"):
+        read_rgb(cut, cam)
+    with pytest.raises(ValueError, match="cut.jpg: camera image cut short"):
+        load_image_u8(cut, cam.width // 2, cam.height // 2, (cam.width, cam.height))
+    padded = tmp_path / "padded.jpg"  # zero padding after the end marker is still a whole image
+    padded.write_bytes(whole + b"\x00" * 16)
+    assert not jpeg_cut_short(padded)
+    assert read_rgb(padded, cam).shape == (cam.height, cam.width, 3)
