@@ -9,6 +9,8 @@ rename: a killed merge leaves the previous database (or none), never a half-writ
 from __future__ import annotations
 
 import json
+import logging
+import shutil
 from collections.abc import Iterable
 from pathlib import Path
 
@@ -25,6 +27,7 @@ from nuav2.nuscenes_db.tables import (
 )
 
 SPLITS_FILE = "splits.json"
+SPLITS_REPORT_FILE = "splits_report.json"  # written by `nuav2 split` beside its geo_* keys
 LOGS_FILE = "nuav2_logs.json"  # per-log facts the tables have no field for (city offset, source split)
 ALL_SPLIT = "all"
 
@@ -102,7 +105,45 @@ def merge_shards(dataroot: Path, version: str, shard_paths: dict[str, Path],
             m = metas[log_id]["meta"]
             splits.setdefault(split_key(m["source"], m["split"]), []).append(scene_names[log_id])
         splits[ALL_SPLIT] = [scene_names[log_id] for log_id in order]
+        sources = {metas[log_id]["meta"]["source"] for log_id in order}
+        carried, keep_report = _carried_splits(dataroot / version, splits, sources)
+        splits.update(carried)
         (tmp / SPLITS_FILE).write_text(json.dumps(splits, indent=1))
+        if keep_report:
+            shutil.copyfile(dataroot / version / SPLITS_REPORT_FILE, tmp / SPLITS_REPORT_FILE)
         logs = [{**metas[log_id]["meta"], "scene_name": scene_names[log_id]} for log_id in order]
         (tmp / LOGS_FILE).write_text(json.dumps(logs, indent=1, ensure_ascii=False))
     return counts
+
+
+def _carried_splits(folder: Path, splits: dict[str, list[str]], sources: set[str]) -> tuple[dict, bool]:
+    """The keys other tools added to the old ``splits.json`` (``nuav2 split``'s ``geo_*``, a user's own),
+    kept when every scene they name is still in the database, and whether ``splits_report.json`` still
+    describes them (nothing dropped, the same scenes). A rerun or an added log rebuilds the folder, and
+    used to drop them silently: loaders and ``eval`` then fell back to other splits."""
+    try:
+        old = json.loads((folder / SPLITS_FILE).read_text())
+    except (OSError, ValueError):
+        return {}, False
+    if not isinstance(old, dict):
+        return {}, False
+    ours = {ALL_SPLIT, *splits}
+    present = set(splits[ALL_SPLIT])
+    log = logging.getLogger(__name__)
+    carried, dropped = {}, []
+    for key, scenes in old.items():
+        if key in ours or any(key.startswith(f"{source}_") for source in sources):
+            continue
+        if isinstance(scenes, list) and set(scenes) <= present:
+            carried[key] = scenes
+        else:
+            dropped.append(key)
+    if dropped:
+        log.warning("%s: dropped split(s) %s, which name scenes no longer in the database; rerun "
+                    "`nuav2 split`", folder / SPLITS_FILE, ", ".join(dropped))
+    same_scenes = set(old.get(ALL_SPLIT) or []) == present
+    if carried and not same_scenes:
+        log.warning("%s: kept split(s) %s, but the database's scenes changed (new scenes are in none of "
+                    "them); rerun `nuav2 split` to assign them", folder / SPLITS_FILE, ", ".join(carried))
+    keep_report = bool(carried) and not dropped and same_scenes and (folder / SPLITS_REPORT_FILE).is_file()
+    return carried, keep_report
