@@ -40,6 +40,16 @@ non_negative_float = number(float, lo=0)
 finite_float = number(float)
 
 
+def path(text: str):
+    """A path argument: ``Path("")`` is ``.``, so an empty one (an unset shell variable) would
+    silently mean the current folder; it is refused instead."""
+    from pathlib import Path
+
+    if not text:
+        raise argparse.ArgumentTypeError("empty path")
+    return Path(text)
+
+
 class OneLineParser(argparse.ArgumentParser):
     """argparse, but a usage error is one line naming the command and the flag (as every other
     error of the CLI is), pointing at ``--help`` instead of printing the usage block."""

@@ -24,6 +24,7 @@ from nuav2.atomic import atomic_write_json
 from nuav2.executors import EXECUTORS
 from nuav2.image_sources import MODES, image_source_for, write_quality_table
 from nuav2.nuscenes_db import shards as sh
+from nuav2.nuscenes_db.can_bus import CAN_BUS_DIRNAME
 from nuav2.nuscenes_db.images import IMAGE_LINKS, NativeImages
 from nuav2.nuscenes_db.merge import LOGS_FILE, merge_shards
 from nuav2.nuscenes_db.rewrites import (
@@ -44,6 +45,11 @@ REPORT_FILE = "convert_report.json"
 
 
 MIN_IMAGE_SIDE_PX = 8  # a smaller target image holds nothing a mapping model could use
+# The largest target image side. JPEG cannot hold more than 65535 px a side, and long before that
+# an image stops fitting a worker: at 16384 x 16384 one float32 RGB buffer of the warp or render
+# is 3 GiB (and it has several), and the pixel count, 2^28, stays under OpenCV's default read limit
+# (2^30). A nuScenes camera (1600 x 900) reaches it at --scale 10.24, an AV2 one (2048 px) at 8.
+MAX_IMAGE_SIDE_PX = 16384
 
 
 class ConvertError(ValueError):
@@ -101,13 +107,34 @@ class ConvertOptions:
             if not 0 < self.scale < math.inf:
                 raise ConvertError(f"--scale must be a finite number > 0, got {self.scale}")
             try:
-                rig = load_rig(self.rig, scale=self.scale)
+                rig = load_rig(self.rig)
             except RigSpecError as e:
                 raise ConvertError(f"--rig: {e}") from e
-            small = [c.channel for c in rig.cameras if min(c.width, c.height) < MIN_IMAGE_SIDE_PX]
-            if small:
-                raise ConvertError(f"--scale {self.scale:g} makes {', '.join(small)} smaller than "
-                                   f"{MIN_IMAGE_SIDE_PX} px on a side")
+            self._check_target_size(rig)
+
+    def _check_target_size(self, rig) -> None:
+        """Every camera of ``rig`` at ``--scale`` must be MIN_IMAGE_SIDE_PX..MAX_IMAGE_SIDE_PX a side
+        (checked before scaling the rig: ``--scale 1e308`` would make an infinite width)."""
+        def side(px: int) -> float:  # as CameraSpec.scaled rounds it
+            try:
+                v = px * self.scale
+            except OverflowError:  # a rig spec's width of hundreds of digits
+                return math.inf
+            return max(1, round(v)) if math.isfinite(v) else math.inf
+
+        sizes = [(c.channel, side(c.width), side(c.height)) for c in rig.cameras]
+        big = sorted((s for s in sizes if max(s[1:]) > MAX_IMAGE_SIDE_PX), key=lambda s: -max(s[1:]))
+        if big:
+            name, w, h = big[0]
+            fmt = ".0f" if max(w, h) < 1e15 else ".3g"
+            size = f"{name} {w:{fmt}}x{h:{fmt}} px" if math.isfinite(w) else f"{name} wider than 1e308 px"
+            why = f"--rig {self.rig}: {size}" if self.scale == 1 else f"--scale {self.scale:g} makes {size}"
+            more = f"; {len(big) - 1} other camera(s) too" if len(big) > 1 else ""
+            raise ConvertError(f"{why} (max {MAX_IMAGE_SIDE_PX} px a side{more})")
+        small = [name for name, w, h in sizes if min(w, h) < MIN_IMAGE_SIDE_PX]
+        if small:
+            raise ConvertError(f"--scale {self.scale:g} makes {', '.join(small)} smaller than "
+                               f"{MIN_IMAGE_SIDE_PX} px on a side")
 
     def _check_executor(self) -> None:
         if self.executor not in EXECUTORS:
@@ -217,6 +244,30 @@ def prepare_output_dir(out: Path) -> None:
         raise ConvertError(f"{out}: {what} the output directory ({e.strerror or e})") from None
 
 
+def written_folders(version: str) -> tuple[str, ...]:
+    """The folders of OUT a conversion writes, replaces or removes files in (docs/database.md's layout)."""
+    return (version, *DATA_DIRS, "maps", CAN_BUS_DIRNAME, sh.SHARDS_DIRNAME)
+
+
+def refuse_overlap(src: Path, out: Path, logs: list[Path], version: str) -> None:
+    """OUT must lie outside SRC and every log found in it (a nuScenes dataroot written into the AV2
+    tree fills a log or a split folder with files), and SRC outside the folders the conversion writes
+    in OUT. SRC elsewhere inside OUT is fine (OUT=/data, SRC=/data/av2/train)."""
+    out_r = Path(out).resolve()
+    inputs = [("SRC", Path(src), Path(src).resolve())] + [("log", p, Path(p).resolve()) for p in logs]
+    for what, path, path_r in inputs:
+        if out_r == path_r or path_r in out_r.parents:
+            where = "is" if out_r == path_r else "is inside"
+            raise ConvertError(f"OUT {out} {where} {what} {path}: the nuScenes dataroot would be written "
+                               f"into the AV2 source; give an OUT outside it")
+    for name in written_folders(version):
+        for what, path, path_r in inputs:
+            if path_r == out_r / name or out_r / name in path_r.parents:
+                where = "is" if path_r == out_r / name else "is inside"
+                raise ConvertError(f"{what} {path} {where} {Path(out) / name}, a folder that converting "
+                                   f"into OUT {out} writes and removes files in: give another OUT")
+
+
 def refuse_foreign_tables(folder: Path) -> None:
     """The merge replaces OUT/<version> whole: refuse where that folder holds files nuav2 did not
     write (no ``nuav2_logs.json``), e.g. a real nuScenes ``v1.0-trainval`` beside the new data."""
@@ -309,9 +360,13 @@ def convert_av2(src: Path, out: Path, options: ConvertOptions | None = None) -> 
     from converters.av2 import find_logs
 
     options = options or ConvertOptions()
+    for name, path in (("SRC", src), ("OUT", out)):
+        if not str(path):  # a str: Path("") is ".", the current folder (the CLI refuses it too)
+            raise ConvertError(f"{name}: empty path")
     options.check()
     out = Path(out)
     logs = find_logs(Path(src))  # a bad SRC fails here, before OUT is created
+    refuse_overlap(Path(src), out, logs, options.version)
     refuse_foreign_tables(out / options.version)
     shared = shared_locations(out, [p.name for p in logs])
     if shared:

@@ -236,8 +236,13 @@ def load_rig(name_or_path: str | Path, scale: float = 1.0) -> Rig:
     if not p.exists():
         raise RigSpecError(f"{p}: rig spec file not found")
     try:
-        spec = json.loads(p.read_text())
+        spec = json.loads(p.read_text(encoding="utf-8"))
     except json.JSONDecodeError as e:
         raise RigSpecError(f"{p}: not valid JSON ({e})") from e
+    except UnicodeDecodeError as e:
+        raise RigSpecError(f"{p}: not a UTF-8 text file (byte 0x{e.object[e.start]:02x} at offset "
+                           f"{e.start}); a rig spec is JSON") from e
+    except OSError as e:  # a directory, no permission, an I/O error
+        raise RigSpecError(f"{p}: cannot read the rig spec ({e.strerror or e})") from e
     rig = rig_from_dict(spec, str(p))
     return rig.scaled(scale) if scale != 1.0 else rig

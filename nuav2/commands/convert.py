@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 
 from nuav2.cli import group
+from nuav2.cli_types import path
 from nuav2.image_sources import MODES
 
 log = logging.getLogger(__name__)
@@ -87,8 +88,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                                    "OUT/<version>/*.json + samples/ + sweeps/ + maps/. Exit code 1 when "
                                    "some logs failed (listed in OUT/convert_report.json; the others are "
                                    "written), 2 when nothing could be converted.")
-    p.add_argument("src", type=Path, help="AV2 split dir, sensor/ dir, dataset root, or one log dir")
-    p.add_argument("out", type=Path, help="output nuScenes dataroot")
+    p.add_argument("src", type=path, metavar="SRC",
+                   help="AV2 split dir, sensor/ dir, dataset root, or one log dir")
+    p.add_argument("out", type=path, metavar="OUT", help="output nuScenes dataroot")
     p.add_argument("--mode", choices=MODES, default="native",
                    help="native: keep AV2's own cameras and images (the paper's AV2 baseline); "
                         "warp: fast depth-warp of the source images into the target rig; "
@@ -117,7 +119,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     _add_executor_args(p)
     p.add_argument("--image-link", choices=["copy", "hardlink", "symlink"], default=None,
                    help="native: how the source images reach OUT (default: copy)")
-    p.add_argument("--calibration", type=Path, default=None,
+    p.add_argument("--calibration", type=path, default=None,
                    help="calibration dir (egovehicle_SE3_sensor + intrinsics) for logs that ship none")
     p.add_argument("--allow-missing-cameras", action="store_true",
                    help="convert logs without (all) camera images instead of reporting them as failed")
