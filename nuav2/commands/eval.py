@@ -11,7 +11,10 @@ from nuav2.cli_types import number, positive_float
 log = logging.getLogger(__name__)
 
 
-DEFAULT_SPLITS = ("geo_val", "av2_val", "val", "mini_val", "all")  # --split default: the first present
+# --split default: the first that holds scenes, among the splits of the database's own release
+# (nuav2.maptr.subsets.release_splits: a v1.0-mini database skips trainval's val, as the devkit does).
+DEFAULT_SPLITS = ("geo_val", "av2_val", "val", "mini_val", "all")
+MINI_DEFAULT_SPLITS = ("geo_val", "av2_val", "mini_val", "val", "all")
 # Points per line for the chamfer distance: MapTR uses 100; beyond 1000 only the run time grows.
 N_RESAMPLE_RANGE = (2, 1000)
 
@@ -38,22 +41,35 @@ def format_table(result: dict) -> str:
     return "\n".join(lines)
 
 
+def default_split_order(version: str) -> tuple[str, ...]:
+    """DEFAULT_SPLITS, with mini_val before val for a ``*-mini`` version (the devkit's and MapTR's
+    evaluation split of v1.0-mini)."""
+    return MINI_DEFAULT_SPLITS if version.endswith("-mini") else DEFAULT_SPLITS
+
+
 def resolve_split(dataroot: str, version: str, split: str | None) -> str:
-    """``split``, or the default (first of DEFAULT_SPLITS present); an unknown split is a UsageError."""
+    """``split``, or the default (the first of :func:`default_split_order` that holds scenes among the
+    release's splits); an unknown split, or one without scenes, is a UsageError."""
     from nuav2.cli import UsageError, require_database
+    from nuav2.maptr.subsets import release_splits
     from nuav2.splits import available_splits
 
     require_database(dataroot, version)
     present = available_splits(dataroot, version)
     if split is None:
-        split = next((s for s in DEFAULT_SPLITS if present.get(s)), None)
+        own = release_splits(dataroot, version)
+        order = default_split_order(version)
+        split = next((s for s in order if own.get(s)), None)
         if split is None:
-            raise UsageError(f"--split: none of the default splits {list(DEFAULT_SPLITS)} is in {dataroot}/"
+            raise UsageError(f"--split: none of the default splits {list(order)} holds scenes in {dataroot}/"
                              f"{version}; splits present: {', '.join(sorted(present)) or 'none'}")
         log.info("evaluating split %s (give --split to choose another)", split)
     elif split not in present:
         raise UsageError(f"--split {split}: not a split of {dataroot}/{version}; splits present: "
                          f"{', '.join(sorted(present)) or 'none'}")
+    elif not present[split]:
+        raise UsageError(f"--split {split}: holds no scenes in {dataroot}/{version}; splits "
+                         f"with scenes: {', '.join(sorted(s for s in present if present[s])) or 'none'}")
     return split
 
 
@@ -170,8 +186,9 @@ def register(subparsers) -> None:
     p.add_argument("--version", help="database version, e.g. v1.0-trainval (default: the only one in "
                                      "--dataroot)")
     p.add_argument("--split", default=None,
-                   help="split name (<version>/splits.json, else the devkit's); default: the first present "
-                        f"of {', '.join(DEFAULT_SPLITS)}")
+                   help="split name (<version>/splits.json, else the devkit's); default: the first that "
+                        f"holds scenes of {', '.join(DEFAULT_SPLITS)} (mini_val first on a *-mini version; "
+                        "the devkit's lists of another nuScenes release are skipped)")
     p.add_argument(
         "--gt-json", help="evaluate against this MapTR GT file ({'GTs': [...]}) instead of the map"
     )

@@ -15,14 +15,17 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "infos",
         help="export MapTRv2 info .pkl files (with vectorized map GT) for each split",
         description="Writes {prefix}_map_infos_temporal_{split}.pkl for the splits in VERSION/splits.json "
-        "(or those given), in the layout MapTRv2's nuScenes dataset reads.",
+        "and the devkit's lists of VERSION's nuScenes release that hold scenes (or those given), in the "
+        "layout MapTRv2's nuScenes dataset reads.",
     )
     p.add_argument("dataroot", type=Path, help="nuScenes-format dataroot")
     p.add_argument("--version", help="table folder under DATAROOT (default: the only one there)")
     p.add_argument("--out", required=True, type=Path, help="directory for the .pkl files")
     p.add_argument("--prefix", default="nuav2",
                    help="file name prefix (default: %(default)s; MapTR uses 'nuscenes')")
-    p.add_argument("--splits", nargs="+", default=None, help="split names (default: all in splits.json)")
+    p.add_argument("--splits", nargs="+", default=None,
+                   help="split names (default: all in splits.json, and the devkit's lists of VERSION's "
+                        "release with scenes present, e.g. mini_train mini_val on v1.0-mini)")
     p.add_argument("--max-sweeps", type=non_negative_int, default=10,
                    help="previous LIDAR_TOP sweeps per keyframe (>= 0; default 10)")
     p.add_argument(

@@ -1,7 +1,9 @@
 """Readers of MapTR-format vector files: predictions (``nuscmap_results.json``) and GT files.
 
 One reader for ``nuav2 eval`` and ``nuav2 viz --pred``, so a file that one accepts the other
-draws or scores the same way; every error names the file and the record.
+draws or scores the same way; every error names the file and the record. Points come back as x, y:
+a file with [x, y, z] points (MapTRv2's 3-D variants) is read with z dropped, as MapTR's 2-D
+evaluation scores it.
 """
 
 from __future__ import annotations
@@ -14,7 +16,7 @@ import numpy as np
 
 
 def _parse_vector(vec, where: str, is_pred: bool) -> tuple:
-    """(cls_name, (N, 2|3) float64 points[, confidence]) of one vector record; a ValueError naming
+    """(cls_name, (N, 2) float64 x, y points[, confidence]) of one vector record; a ValueError naming
     ``where`` (file, sample, vector index) and the field on anything else, so no bad record
     reaches the evaluator or the drawing code as an unhashable name or a None score."""
     if not isinstance(vec, dict) or "pts" not in vec or "cls_name" not in vec:
@@ -37,8 +39,9 @@ def _show(value) -> str:
 
 
 def _points(pts, where: str) -> np.ndarray:
-    """'pts' as (N, 2) or (N, 3) finite float64 (an empty list: no points); numpy converts well-formed
-    lists in one pass, anything else gets a message saying which point is wrong and how."""
+    """'pts' ([x, y] or [x, y, z] points) as (N, 2) finite float64 x, y, z dropped (an empty list: no
+    points); numpy converts well-formed lists in one pass, anything else gets a message saying which
+    point is wrong and how."""
     arr = None
     if isinstance(pts, list) and pts:
         with contextlib.suppress(ValueError, TypeError):
@@ -56,7 +59,7 @@ def _points(pts, where: str) -> np.ndarray:
         raise ValueError(f"{where}: 'pts' holds a number too large for a float") from None
     if not np.isfinite(arr).all():
         raise ValueError(f"{where}: 'pts' holds NaN or Inf")
-    return arr
+    return np.ascontiguousarray(arr[:, :2])
 
 
 def _points_problem(pts) -> str | None:

@@ -30,14 +30,38 @@ def _splits_json(nusc) -> Path:
     return Path(nusc.dataroot) / nusc.version / "splits.json"
 
 
-def available_splits(nusc) -> list[str]:
-    """Split names of this database: those in splits.json, else the devkit's built-in ones."""
-    path = _splits_json(nusc)
-    if path.is_file():
-        return sorted(_read_splits(path))
+# The devkit's built-in lists of each nuScenes release, by the version's ending. create_splits_scenes()
+# holds every release's lists, and a release's scenes stand in another's lists too (each v1.0-mini
+# scene is in trainval's train or val), so a list of another release only looks present.
+RELEASE_SPLITS = {
+    "-trainval": ("train", "val", "train_detect", "train_track"),
+    "-test": ("test",),
+    "-mini": ("mini_train", "mini_val"),
+}
+
+
+def release_splits(dataroot: str | Path, version: str) -> dict[str, list[str]]:
+    """{split name: scene names} a consumer picks from by default: ``nuav2.splits.available_splits``
+    (splits.json, then each devkit list with scenes present) less the devkit's lists of another
+    release than ``version``'s (v1.0-mini keeps mini_train/mini_val, not val); a version without
+    a release ending keeps every list, and a name splits.json defines is always kept."""
     from nuscenes.utils.splits import create_splits_scenes
 
-    return sorted(create_splits_scenes())
+    from nuav2.splits import available_splits as splits_present
+
+    splits = splits_present(dataroot, version)
+    own = next((names for end, names in RELEASE_SPLITS.items() if version.endswith(end)), None)
+    if own is None:
+        return splits
+    path = Path(dataroot) / version / "splits.json"
+    defined = _read_splits(path) if path.is_file() else {}
+    foreign = set(create_splits_scenes()) - set(own) - set(defined)
+    return {name: scenes for name, scenes in splits.items() if name not in foreign}
+
+
+def available_splits(nusc) -> list[str]:
+    """Split names of this database, sorted (:func:`release_splits`)."""
+    return sorted(release_splits(nusc.dataroot, nusc.version))
 
 
 def _read_splits(path: Path) -> dict[str, list[str]]:
