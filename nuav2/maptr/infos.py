@@ -317,7 +317,8 @@ def export_infos(
     ray_address: str | None = None,
     progress: bool = True,
 ) -> dict[str, Path]:
-    """Write ``{prefix}_map_infos_temporal_{split}.pkl`` per split (default: all in splits.json).
+    """Write ``{prefix}_map_infos_temporal_{split}.pkl`` per split (default: every split with
+    scenes: splits.json's and the version's own nuScenes release lists, ``available_splits``).
 
     Scenes are turned into records by ``workers`` local processes (or Ray actors with
     ``executor="ray"``) and streamed into each file in split order; the bytes are the same
