@@ -31,7 +31,7 @@ def test_a_usage_error_is_one_line_naming_the_command(capsys):
         main(["convert", "av2", "src"])
     err = capsys.readouterr().err
     assert exit_.value.code == 2 and err.count("\n") == 1
-    assert err.startswith("nuav2 convert av2: the following arguments are required: out")
+    assert err.startswith("nuav2 convert av2: the following arguments are required: OUT")
 
 
 @pytest.mark.parametrize("argv, prog", [(["split", "db", "--val-fraction", "2"], "nuav2 split"),
