@@ -253,19 +253,31 @@ def refuse_overlap(src: Path, out: Path, logs: list[Path], version: str) -> None
     """OUT must lie outside SRC and every log found in it (a nuScenes dataroot written into the AV2
     tree fills a log or a split folder with files), and SRC outside the folders the conversion writes
     in OUT. SRC elsewhere inside OUT is fine (OUT=/data, SRC=/data/av2/train)."""
-    out_r = Path(out).resolve()
-    inputs = [("SRC", Path(src), Path(src).resolve())] + [("log", p, Path(p).resolve()) for p in logs]
+    out_r = _resolved("OUT", Path(out))
+    inputs = [("SRC", Path(src), _resolved("SRC", Path(src)))] + [("log", p, _resolved("log", Path(p)))
+                                                                   for p in logs]
     for what, path, path_r in inputs:
         if out_r == path_r or path_r in out_r.parents:
             where = "is" if out_r == path_r else "is inside"
             raise ConvertError(f"OUT {out} {where} {what} {path}: the nuScenes dataroot would be written "
                                f"into the AV2 source; give an OUT outside it")
+        if what == "log" and out_r == path_r.parent:
+            raise ConvertError(f"OUT {out} is the split folder of log {path}: the nuScenes dataroot would be "
+                               f"written among the AV2 logs; give an OUT outside it")
     for name in written_folders(version):
         for what, path, path_r in inputs:
             if path_r == out_r / name or out_r / name in path_r.parents:
                 where = "is" if path_r == out_r / name else "is inside"
                 raise ConvertError(f"{what} {path} {where} {Path(out) / name}, a folder that converting "
                                    f"into OUT {out} writes and removes files in: give another OUT")
+
+
+def _resolved(what: str, path: Path) -> Path:
+    """``path.resolve()``; a symlink loop or unreadable link is a one-line error naming the path."""
+    try:
+        return path.resolve()
+    except (RuntimeError, OSError) as e:
+        raise ConvertError(f"{what} {path}: cannot resolve the path ({e})") from None
 
 
 def refuse_foreign_tables(folder: Path) -> None:

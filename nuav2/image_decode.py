@@ -25,21 +25,46 @@ def jpeg_reduction(path: Path, source_size: tuple[int, int] | None, width: int, 
                       and w0 // f >= width and h0 // f >= height])
 
 
-def jpeg_cut_short(path: Path) -> bool:
-    """Whether a JPEG file lacks its end-of-image marker (FF D9) at its end, i.e. was cut short; cv2
-    decodes such a file without an error (the missing rows grey), so warp and render modes check this
-    first. Reads only the file's last bytes; other formats are never "cut short" here."""
-    if Path(path).suffix.lower() not in (".jpg", ".jpeg"):
+def jpeg_cut_short(data: bytes) -> bool:
+    """Whether JPEG bytes were cut short: no end-of-image marker (FF D9) after the first scan. cv2 decodes
+    such a file without an error (the missing rows grey), so warp and render modes check this first.
+    The header segments are walked by their lengths (an EXIF thumbnail's own markers are skipped);
+    entropy-coded data never holds FF D9. Bytes after the marker are allowed, and anything that is not
+    JPEG content is left to the decoder."""
+    if data[:2] != b"\xff\xd8":
         return False
+    pos = 2
+    while True:
+        if pos + 4 > len(data):
+            return True  # the headers end before the first scan
+        if data[pos] != 0xFF:
+            return False  # not a marker: the decoder judges it
+        marker = data[pos + 1]
+        if marker == 0xFF:  # fill byte
+            pos += 1
+        elif marker == 0xDA:  # start of scan
+            return data.find(b"\xff\xd9", pos + 2) < 0
+        elif marker == 0xD9:
+            return False  # an end before any scan: the decoder judges it
+        elif 0xD0 <= marker <= 0xD7 or marker == 0x01:  # markers without a length
+            pos += 2
+        else:
+            pos += 2 + int.from_bytes(data[pos + 2:pos + 4], "big")
+
+
+def read_bgr(path: Path, flags: int = cv2.IMREAD_COLOR) -> np.ndarray:
+    """A camera image decoded by cv2 from its bytes, read once; ValueError naming the file when it is
+    missing, does not decode, or is a JPEG cut short."""
     try:
-        with open(path, "rb") as f:
-            f.seek(0, 2)
-            size = f.tell()
-            f.seek(max(0, size - 64))
-            tail = f.read()
-    except OSError:
-        return False  # the decoder reports an unreadable file itself
-    return not tail.rstrip(b"\x00").endswith(b"\xff\xd9")
+        data = Path(path).read_bytes()
+    except OSError as e:
+        raise ValueError(f"{path}: camera image missing or unreadable ({e.strerror})") from None
+    if jpeg_cut_short(data):
+        raise ValueError(f"{path}: camera image cut short (no JPEG end-of-image marker)")
+    bgr = cv2.imdecode(np.frombuffer(data, np.uint8), flags)
+    if bgr is None:
+        raise ValueError(f"{path}: camera image does not decode")
+    return bgr
 
 
 def load_image_u8(path: Path, width: int, height: int,
@@ -47,11 +72,7 @@ def load_image_u8(path: Path, width: int, height: int,
     """Read an image file as uint8 RGB, area-resized to width x height (decoded at a reduced size first
     where :func:`jpeg_reduction` allows, given the file's ``source_size``)."""
     f = jpeg_reduction(path, source_size, width, height)
-    bgr = cv2.imread(str(path), _REDUCED_JPEG[f] if f > 1 else cv2.IMREAD_COLOR)
-    if bgr is None:
-        raise ValueError(f"{path}: camera image missing or unreadable")
-    if jpeg_cut_short(path):
-        raise ValueError(f"{path}: camera image cut short (no JPEG end-of-image marker)")
+    bgr = read_bgr(path, _REDUCED_JPEG[f] if f > 1 else cv2.IMREAD_COLOR)
     if bgr.shape[:2] != (height, width):
         bgr = cv2.resize(bgr, (width, height), interpolation=cv2.INTER_AREA)
     return np.ascontiguousarray(bgr[:, :, ::-1])

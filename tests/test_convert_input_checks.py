@@ -182,3 +182,22 @@ def test_empty_path_in_the_python_api_is_refused(tmp_path: Path, monkeypatch: py
     with pytest.raises(ConvertError, match="SRC: empty path"):
         convert_av2("", tmp_path / "out")
     assert tree(tmp_path) == before
+
+
+def test_out_as_the_split_folder_of_a_log_given_as_src_is_refused(tmp_path: Path):
+    """SRC is one log; OUT its split folder would fill the AV2 split with samples/, sweeps/, ..."""
+    split = fake_split(tmp_path / "av2")
+    before = tree(tmp_path)
+    code, err = run("convert", "av2", split / LOG_ID, split, "--no-progress")
+    refused(code, err, f"OUT {split} is the split folder of log {split / LOG_ID}")
+    assert tree(tmp_path) == before
+
+
+def test_out_through_a_symlink_loop_is_one_line(tmp_path: Path):
+    split = fake_split(tmp_path / "av2")
+    (tmp_path / "loopA").symlink_to(tmp_path / "loopB")
+    (tmp_path / "loopB").symlink_to(tmp_path / "loopA")
+    for out in (tmp_path / "loopA", tmp_path / "loopA" / "out"):
+        code, err = run("convert", "av2", split, out, "--no-progress")
+        assert code == 2 and "internal error" not in err, err
+        refused(code, err, str(tmp_path / "loopA"))

@@ -67,3 +67,18 @@ def test_a_split_naming_a_scene_no_longer_there_is_dropped_with_a_warning(split_
     after = json.loads(path.read_text())
     assert after["my_val"] == splits["my_val"] and "stale" not in after
     assert "stale" in caplog.text and not (out / VERSION / "splits_report.json").exists()
+
+
+@pytest.mark.parametrize("key, value", [("mine", [["scene-0001"]]), ("mine", [{"scene": "x"}]), ("all", 5),
+                                        ("mine", "scene-0001")])
+def test_a_malformed_key_in_splits_json_is_dropped_not_a_crash(split_db, caplog, key, value):
+    src, out = split_db
+    path = out / VERSION / "splits.json"
+    splits = json.loads(path.read_text())
+    splits[key] = value
+    path.write_text(json.dumps(splits))
+    with caplog.at_level(logging.WARNING):
+        _convert(src / "train", out)
+    after = json.loads(path.read_text())
+    assert "mine" not in after and isinstance(after["all"], list) and len(after["all"]) == 3
+    assert any(k.startswith("geo_") for k in after)

@@ -273,3 +273,16 @@ def test_prediction_helper_past_and_future_cover_the_seconds_asked(db: Path, nus
     if max(s["nbr_samples"] for s in nusc.scene) < 4:
         pytest.skip("no scene has 4 samples (the real fixture ships one sweep): no track spans 0.3 s")
     assert checked > 0
+
+
+def test_prediction_helper_takes_the_rate_following_walk_from_2_25_hz():
+    """2.5 Hz keyframes measure 2.49994 or 2.50008 Hz by their sweeps' timing: both must follow the
+    scene's rate (a threshold at 2.5 sent one log to the devkit's 2-a-second cap and one not)."""
+    import sys
+
+    import nuav2  # noqa: F401  (loads the hook file as the module nuav2_devkit_locations)
+
+    follows_scene_rate = sys.modules["nuav2_devkit_locations"].follows_scene_rate
+
+    assert not any(follows_scene_rate(r) for r in (None, 1.0, 2.0, 2.00006, 1.99994))
+    assert all(follows_scene_rate(r) for r in (2.49994, 2.5, 2.50008, 5.0, 9.99942))

@@ -91,24 +91,41 @@ def test_an_image_read_for_the_exposure_solve_is_corrected_without_a_second_deco
 
 def test_a_jpeg_cut_short_is_refused_by_the_warp_and_render_readers(quarter_log, tmp_path: Path):
     """cv2 decodes a truncated JPEG without an error (its missing rows grey); native mode's decode
-    check caught it, warp and render modes converted the grey rows until they checked the end marker."""
+    check caught it, warp and render modes converted the grey rows until they checked the end marker.
+    Bytes after the marker (padding, a trailer) and other formats under a .jpg name stay readable."""
+    import cv2
+
     from nuav2.image_decode import jpeg_cut_short
-    from nuav2.nuscenes_db.images import ImageSourceError
+    from nuav2.nuscenes_db.images import ImageSourceError, decode_problem
+    from nuav2.warp.harmonise import read_reduced
     from nuav2.warp.provider import read_rgb
 
     scene = read_log(quarter_log)
     frame = next(iter(scene.camera_frames.values()))[0]
     cam = scene.rig.camera(frame.channel)
     whole = Path(frame.path).read_bytes()
-    assert not jpeg_cut_short(Path(frame.path))
-    cut = tmp_path / "cut.jpg"
-    cut.write_bytes(whole[: len(whole) * 3 // 4])
-    assert jpeg_cut_short(cut)
-    with pytest.raises(ImageSourceError, match="cut.jpg: image cut short"):
-        read_rgb(cut, cam)
-    with pytest.raises(ValueError, match="cut.jpg: camera image cut short"):
-        load_image_u8(cut, cam.width // 2, cam.height // 2, (cam.width, cam.height))
-    padded = tmp_path / "padded.jpg"  # zero padding after the end marker is still a whole image
-    padded.write_bytes(whole + b"\x00" * 16)
-    assert not jpeg_cut_short(padded)
-    assert read_rgb(padded, cam).shape == (cam.height, cam.width, 3)
+    assert not jpeg_cut_short(whole)
+    for keep in (len(whole) * 3 // 4, len(whole) - 2, 300):
+        cut = tmp_path / "cut.jpg"
+        cut.write_bytes(whole[:keep])
+        assert jpeg_cut_short(cut.read_bytes()) and decode_problem(cut) is not None, keep
+        with pytest.raises(ImageSourceError, match="cut.jpg: camera image cut short"):
+            read_rgb(cut, cam)
+        with pytest.raises(ValueError, match="cut.jpg: camera image cut short"):
+            load_image_u8(cut, cam.width // 2, cam.height // 2, (cam.width, cam.height))
+        with pytest.raises(ImageSourceError, match="cut.jpg: camera image cut short"):
+            read_reduced(cut, cam)  # warp's exposure solve, which reads the images first
+    png = cv2.imencode(".png", cv2.imread(frame.path))[1].tobytes()
+    for name, data in (("zeros", whole + b"\x00" * 16), ("crlf", whole + b"\r\n" * 40),
+                       ("ff", whole + b"\xff" * 8), ("trailer", whole + bytes(range(256)) * 2),
+                       ("png", png)):
+        ok = tmp_path / f"{name}.jpg"
+        ok.write_bytes(data)
+        assert not jpeg_cut_short(data) and decode_problem(ok) is None, name
+        assert np.array_equal(read_rgb(ok, cam), read_rgb(Path(frame.path), cam)), name
+    # A thumbnail's own markers (an APP1 segment holding a whole small JPEG) do not end the image.
+    thumb = cv2.imencode(".jpg", np.zeros((8, 8, 3), np.uint8))[1].tobytes()
+    app1 = b"\xff\xe1" + (len(thumb) + 2).to_bytes(2, "big") + thumb
+    with_thumb = whole[:2] + app1 + whole[2:]
+    assert not jpeg_cut_short(with_thumb)
+    assert jpeg_cut_short(with_thumb[: len(with_thumb) * 3 // 4])

@@ -214,6 +214,13 @@ def _keyframe_rate(helper, sample_token):
     return cache[scene_token]
 
 
+def follows_scene_rate(rate):
+    """Whether a scene sampled at ``rate`` Hz (None: not nuAV2, or one sample) needs the rate-following
+    walk: halfway between 2 Hz and 2.5 Hz, so that 2 Hz with jitter keeps the devkit's code and 2.5 Hz,
+    which measures 2.49994 or 2.50008 by its sweeps' timing, never does."""
+    return rate is not None and rate >= 2.25
+
+
 def _patch_prediction_helper(helper_module):
     """PredictHelper caps a past / future at 2 annotations a second (nuScenes' keyframe rate), so on a
     nuAV2 database keyed at every 10 Hz sweep ``seconds=1`` gave 0.2 s; here the cap follows the scene's
@@ -225,7 +232,7 @@ def _patch_prediction_helper(helper_module):
 
     def _iterate(self, starting_annotation, seconds, direction):
         rate = _keyframe_rate(self, starting_annotation["sample_token"]) if seconds > 0 else None
-        if rate is None or rate <= 2.5:
+        if not follows_scene_rate(rate):
             return devkit_iterate(self, starting_annotation, seconds, direction)
         # The devkit's tolerance (BUFFER, 0.15 s) is under half its 0.5 s sample period, and its count cap
         # keeps the sample after ``seconds`` out; at the scene's rate half a period does both.

@@ -134,16 +134,21 @@ def _carried_splits(folder: Path, splits: dict[str, list[str]], sources: set[str
     for key, scenes in old.items():
         if key in ours or any(key.startswith(f"{source}_") for source in sources):
             continue
-        if isinstance(scenes, list) and set(scenes) <= present:
+        if _scene_list(scenes) and set(scenes) <= present:
             carried[key] = scenes
         else:
             dropped.append(key)
     if dropped:
         log.warning("%s: dropped split(s) %s, which name scenes no longer in the database; rerun "
                     "`nuav2 split`", folder / SPLITS_FILE, ", ".join(dropped))
-    same_scenes = set(old.get(ALL_SPLIT) or []) == present
+    same_scenes = _scene_list(old.get(ALL_SPLIT)) and set(old[ALL_SPLIT]) == present
     if carried and not same_scenes:
         log.warning("%s: kept split(s) %s, but the database's scenes changed (new scenes are in none of "
                     "them); rerun `nuav2 split` to assign them", folder / SPLITS_FILE, ", ".join(carried))
     keep_report = bool(carried) and not dropped and same_scenes and (folder / SPLITS_REPORT_FILE).is_file()
     return carried, keep_report
+
+
+def _scene_list(value) -> bool:
+    """Whether a ``splits.json`` value is a list of scene names (a user may have written anything)."""
+    return isinstance(value, list) and all(isinstance(v, str) for v in value)

@@ -50,8 +50,8 @@ def read_reduced(path: Path, camera: CameraSpec,
     small = camera.scaled(scale) if scale < 1.0 else camera
     try:
         img = load_image_u8(path, small.width, small.height, (camera.width, camera.height))
-    except ValueError:
-        raise ImageSourceError(f"{path}: not a readable image") from None
+    except ValueError as e:
+        raise ImageSourceError(str(e)) from None  # names the file and what is wrong with it
     return img, small
 
 

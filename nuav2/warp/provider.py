@@ -20,7 +20,6 @@ from concurrent.futures import Future
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
-import cv2
 import numpy as np
 from threadpoolctl import ThreadpoolController
 
@@ -28,7 +27,7 @@ from nuav2.actor_tracks import is_non_rigid
 from nuav2.atomic import atomic_write_json
 from nuav2.exposure import ExposureConfig, ExposureModel
 from nuav2.geometry import F64, T_inverse
-from nuav2.image_decode import jpeg_cut_short
+from nuav2.image_decode import read_bgr
 from nuav2.nuscenes_db.images import ImageSourceError, RenderedImages
 from nuav2.rig import CameraSpec
 from nuav2.scene import CameraFrame, SceneLog
@@ -109,11 +108,10 @@ def half_diagonal_fov(camera: CameraSpec) -> float:
 
 def read_rgb(path: Path, camera: CameraSpec) -> np.ndarray:
     """uint8 RGB image; raises ImageSourceError naming the file when unreadable or the wrong size."""
-    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
-    if img is None:
-        raise ImageSourceError(f"{path}: not a readable image")
-    if jpeg_cut_short(path):
-        raise ImageSourceError(f"{path}: image cut short (no JPEG end-of-image marker)")
+    try:
+        img = read_bgr(path)
+    except ValueError as e:
+        raise ImageSourceError(str(e)) from None
     if img.shape[:2] != (camera.height, camera.width):
         raise ImageSourceError(f"{path}: image is {img.shape[1]}x{img.shape[0]} but the calibration of "
                                f"{camera.channel} says {camera.width}x{camera.height}")
