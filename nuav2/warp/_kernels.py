@@ -146,11 +146,11 @@ def splat_points_kernel(points, radius_m, cam_T_city, K, near, far, min_px, max_
     f = 0.5 * (fx + fy)
     for i in range(points.shape[0]):
         px, py, pz = points[i, 0], points[i, 1], points[i, 2]
+        z = cam_T_city[2, 0] * px + cam_T_city[2, 1] * py + cam_T_city[2, 2] * pz + cam_T_city[2, 3]
+        if not (z > near and z < far):  # most points are behind or beside the camera: reject before x, y
+            continue
         x = cam_T_city[0, 0] * px + cam_T_city[0, 1] * py + cam_T_city[0, 2] * pz + cam_T_city[0, 3]
         y = cam_T_city[1, 0] * px + cam_T_city[1, 1] * py + cam_T_city[1, 2] * pz + cam_T_city[1, 3]
-        z = cam_T_city[2, 0] * px + cam_T_city[2, 1] * py + cam_T_city[2, 2] * pz + cam_T_city[2, 3]
-        if not (z > near and z < far):
-            continue
         u = fx * x / z + skew * y / z + cx
         v = fy * y / z + cy
         r = min(max(f * radius_m[i] / z, min_px), max_px)
@@ -163,6 +163,33 @@ def splat_points_kernel(points, radius_m, cam_T_city, K, near, far, min_px, max_
                 ddx = xx - u
                 if ddx * ddx + ddy * ddy <= r2 and z < depth[yy, xx]:
                     depth[yy, xx] = z
+
+
+@njit(cache=True, nogil=True)
+def inverse_depth32_kernel(depth, inv):  # pragma: no cover - compiled
+    """float32 ``1 / z`` of a depth map (0 where empty: not finite) in one pass; returns the empty count."""
+    n_empty = 0
+    for r in range(depth.shape[0]):
+        for c in range(depth.shape[1]):
+            z = depth[r, c]
+            if math.isfinite(z):
+                inv[r, c] = np.float32(1.0 / z)
+            else:
+                inv[r, c] = np.float32(0.0)
+                n_empty += 1
+    return n_empty
+
+
+@njit(cache=True, nogil=True)
+def fill_closed_kernel(depth, closed, out):  # pragma: no cover - compiled
+    """``out`` = ``depth``, except empty pixels where the closed inverse depth is > 0 get ``1 / closed``."""
+    for r in range(depth.shape[0]):
+        for c in range(depth.shape[1]):
+            z = depth[r, c]
+            if not math.isfinite(z) and closed[r, c] > 0:
+                out[r, c] = 1.0 / np.float64(closed[r, c])
+            else:
+                out[r, c] = z
 
 
 @njit(cache=True, inline="always")
@@ -418,3 +445,26 @@ def ground_heights_kernel(xy, normal, offset, heights, rR, rt, rs, has_raster, o
     """Ground z at each city (x, y): the raster's bilinear height where it has one, else the plane's."""
     for i in range(xy.shape[0]):
         out[i] = _ground_height(xy[i, 0], xy[i, 1], normal, offset, heights, rR, rt, rs, has_raster)
+
+
+@njit(cache=True, nogil=True)
+def blend_to_uint8_kernel(acc, wsum, img8, hole):  # pragma: no cover - compiled
+    """Blended colours straight to uint8: ``clip(rint(float32(acc / wsum) * 255))``, the same float64
+    division, float32 rounding and float32 product as the numpy steps it replaces; 0 where ``wsum`` is 0.
+    ``hole`` is 1 where ``float32(wsum)`` is 0 (``WarpResult.coverage``); returns the hole count."""
+    h, w = hole.shape
+    k = np.float32(255.0)
+    zero = np.float32(0.0)
+    n_holes = 0
+    for r in range(h):
+        for c in range(w):
+            i = r * w + c
+            ws = wsum[i]
+            covered = np.float32(ws) > zero
+            hole[r, c] = 0 if covered else 1
+            n_holes += 0 if covered else 1
+            d = max(ws, 1e-300)
+            for ch in range(3):
+                v = np.rint(np.float32(acc[i, ch] / d) * k) if ws > 0.0 else zero
+                img8[r, c, ch] = np.uint8(min(max(v, zero), k))
+    return n_holes

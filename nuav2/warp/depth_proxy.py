@@ -23,9 +23,11 @@ from nuav2.rig import CameraSpec
 from nuav2.scene import GroundHeightRaster
 from nuav2.warp._kernels import (
     box_depth_kernel,
+    fill_closed_kernel,
     ground_depth_kernel,
     ground_heights_kernel,
     ground_intersect_kernel,
+    inverse_depth32_kernel,
     ray_box_kernel,
     splat_points_kernel,
 )
@@ -169,15 +171,14 @@ def close_holes(depth: F64, fill_px: int) -> F64:
     """
     if fill_px <= 1:
         return depth
-    empty = ~np.isfinite(depth)
-    if not np.any(empty) or np.all(empty):
+    inv = np.empty(depth.shape, np.float32)
+    n_empty = inverse_depth32_kernel(depth, inv)  # one pass, not five numpy temporaries
+    if n_empty == 0 or n_empty == depth.size:
         return depth
-    inv = np.where(empty, 0.0, 1.0 / np.where(empty, 1.0, depth)).astype(np.float32)
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (fill_px, fill_px))
     closed = cv2.morphologyEx(inv, cv2.MORPH_CLOSE, kernel, borderType=cv2.BORDER_REPLICATE)
-    fill = empty & (closed > 0)
-    out = depth.copy()
-    out[fill] = 1.0 / closed[fill].astype(np.float64)
+    out = np.empty_like(depth)
+    fill_closed_kernel(depth, closed, out)
     return out
 
 
