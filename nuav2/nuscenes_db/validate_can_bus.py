@@ -9,13 +9,12 @@ the files that exist are checked.
 
 from __future__ import annotations
 
-import json
 import math
 from collections import defaultdict
 from pathlib import Path
 
 from nuav2.nuscenes_db.can_bus import CAN_BUS_DIRNAME
-from nuav2.nuscenes_db.validate_tables import _S, TableStore
+from nuav2.nuscenes_db.validate_tables import _S, TableStore, read_json
 
 POSE_FIELDS = {"accel": 3, "orientation": 4, "pos": 3, "rotation_rate": 3, "vel": 3}
 
@@ -23,7 +22,7 @@ POSE_FIELDS = {"accel": 3, "orientation": 4, "pos": 3, "rotation_rate": 3, "vel"
 def pose_file_problem(path: Path, sample_times_us: list[int]) -> str | None:
     """What is wrong with one scene's pose file, or None."""
     try:
-        messages = json.loads(path.read_bytes())
+        messages = read_json(path)
     except (OSError, ValueError) as e:
         return f"cannot parse {path}: {e}"
     if not isinstance(messages, list) or not messages:

@@ -10,12 +10,13 @@ it protects. Problems go to ``add(table, token, field, message, check)`` under t
 from __future__ import annotations
 
 import contextlib
-import json
 import math
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import shapely
+
+from nuav2.nuscenes_db.validate_tables import read_json
 
 AddProblem = Callable[[str, str, str, str, str], None]  # (table, token, field, message, check)
 _Problem = Callable[[str, str, str, str], None]  # the same, bound to one expansion file
@@ -45,7 +46,7 @@ def validate_map_expansion(path: Path, location: str, add: AddProblem) -> None:
         problem("", "", f"map expansion file missing: {path}", "missing_map")
         return
     try:
-        obj = json.loads(path.read_bytes())
+        obj = read_json(path)
     except (OSError, ValueError) as e:
         problem("", "", f"cannot parse {path}: {e}", "bad_json")
         return

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import itertools
-import json
 
 import numpy as np
 
@@ -17,6 +16,7 @@ from nuav2.nuscenes_db.validate_tables import (
     SCENE_NAME_RE,
     SCHEMA,
     TableStore,
+    read_json,
 )
 
 _MISSING = object()
@@ -90,10 +90,10 @@ class RecordChecks(TableStore):
                 self.add("calibrated_sensor", tokens[i], "camera_intrinsic", msg, "intrinsic")
 
     def _check_quaternions(self, table: str) -> None:
-        q, finite = self.vectors(table, "rotation", 4)
-        norm = np.linalg.norm(np.where(finite[:, None], q, 1.0), axis=1)
+        q, finite = self.vectors(table, "rotation", 4)  # wrong shape or NaN/Inf: reported there, not here
+        norm = np.linalg.norm(np.where(finite[:, None], q, 0.0), axis=1)
         tokens = self.tokens(table)
-        for i in np.flatnonzero(np.abs(norm - 1.0) > QUAT_TOL):
+        for i in np.flatnonzero(finite & (np.abs(norm - 1.0) > QUAT_TOL)):
             self.add(table, tokens[i], "rotation", f"not a unit quaternion: |q| = {norm[i]:.9f} "
                      f"(tolerance {QUAT_TOL:g})", "quaternion")
 
@@ -168,7 +168,7 @@ class RecordChecks(TableStore):
         if not path.exists():
             return
         try:
-            splits = json.loads(path.read_bytes())
+            splits = read_json(path)
         except (OSError, ValueError) as e:
             self.add("splits", "", "", f"cannot parse {path}: {e}", "bad_json")
             return

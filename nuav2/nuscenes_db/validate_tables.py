@@ -64,6 +64,17 @@ LIDAR_NEEDED = "(MapTR and the detection eval read sample['data']['LIDAR_TOP'])"
 AddProblem = Callable[[str, str, str, str, str], None]  # (table, token, field, message, check)
 
 
+def read_json(path: Path):
+    """Parse a JSON file as the devkit reads it: strict UTF-8 text, so a BOM or UTF-16 is an error.
+
+    Raises OSError or ValueError only: nesting too deep for the parser becomes a ValueError too.
+    """
+    try:
+        return json.loads(path.read_bytes().decode("utf-8"))
+    except RecursionError:
+        raise ValueError("JSON nested too deeply to parse") from None
+
+
 class TableStore:
     """Holds the loaded tables, their token indexes and cached columns while checks run."""
 
@@ -88,8 +99,7 @@ class TableStore:
             self.add(table, "", "", f"table file missing: {path}", "missing_table")
             return
         try:
-            with open(path, "rb") as f:
-                data = json.load(f)
+            data = read_json(path)
         except (OSError, ValueError) as e:
             self.add(table, "", "", f"cannot parse {path}: {e}", "bad_json")
             return
