@@ -16,9 +16,10 @@ from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 # Problems of the conformance checker that stop the devkit (or the code reading its records):
-# missing or unparsable tables, records of the wrong shape, tokens that resolve to nothing.
+# missing or unparsable tables, records of the wrong shape, tokens that resolve to nothing, numbers
+# that are NaN/Inf or of the wrong length, rotations that are no unit quaternion.
 STRUCTURAL_CHECKS = ("layout", "missing_table", "bad_json", "schema", "duplicate_token", "foreign_key",
-                     "linked_list", "map_table")
+                     "linked_list", "map_table", "non_finite", "shape", "quaternion")
 
 
 def refuse_repeats(flag: str, values: Sequence[str]) -> None:
@@ -73,12 +74,21 @@ def table_problem(dataroot: str | Path, version: str) -> str | None:
         return None
     p = found[0]
     where = " ".join(s for s in (f"record {p.token}" if p.token else "", p.field) if s)
-    table = Path(dataroot) / version / f"{p.table}.json" if p.table else Path(dataroot) / version
+    table = _table_file(Path(dataroot), version, p.table)
     what = f"{where + ': ' if where else ''}{p.message}"
     more = report.n_problems - 1
     rest = f"; {more} more problem(s)" if more else ""
     return (f"{what if str(table) in what else f'{table}: {what}'} (malformed table{rest}; "
             f"'nuav2 validate {dataroot} --version {version}' lists them)")
+
+
+def _table_file(dataroot: Path, version: str, table: str) -> Path:
+    """The file a problem's ``table`` names: ``expansion/LOC`` is ``maps/expansion/LOC.json``."""
+    if not table:
+        return dataroot / version
+    if table.startswith("expansion/"):
+        return dataroot / "maps" / f"{table}.json"
+    return dataroot / version / f"{table}.json"
 
 
 @contextlib.contextmanager

@@ -31,6 +31,8 @@ CLASS_COLORS_RGB = {
 }
 NEAR_PLANE_M = 0.5
 DENSIFY_M = 0.5
+CAMERA_RANGE_M = 1000.0  # vectors are cut to this half-extent box for the cameras (beyond: at the horizon)
+BEV_MARGIN_M = 1.0  # ... and to the BEV patch grown by this much before the BEV panel
 
 Scored = list[tuple[str, F64, float]]
 
@@ -54,6 +56,53 @@ def densify(xy: np.ndarray, step_m: float = DENSIFY_M) -> F64:
         n = max(1, int(math.ceil(np.linalg.norm(b - a) / step_m)))
         out.append(a + (b - a) * (np.arange(1, n + 1)[:, None] / n))
     return np.concatenate(out)
+
+
+def clip_polyline(xy: np.ndarray, half_extent_xy: tuple[float, float]) -> list[F64]:
+    """The parts of a polyline inside the box |x| <= hx, |y| <= hy, as polylines (each segment cut
+    at the box's sides in turn). Drawing works on these: a prediction's huge coordinates (1e20 m)
+    cannot blow up densifying or overflow pixel coordinates, and what lies in the box is unchanged."""
+    pts = np.asarray(xy, dtype=np.float64)[:, :2]
+    hx, hy = half_extent_xy
+    if len(pts) < 2:
+        return []
+    if np.all(np.abs(pts) <= (hx, hy)):
+        return [pts]
+    a, b = pts[:-1].copy(), pts[1:].copy()
+    ok = np.all(np.isfinite(a), axis=1) & np.all(np.isfinite(b), axis=1)
+    cut_a, cut_b = np.zeros(len(a), dtype=bool), np.zeros(len(a), dtype=bool)
+    for k, bound in ((0, hx), (0, -hx), (1, hy), (1, -hy)):
+        o = 1 - k
+        out_a, out_b = a[:, k] * np.sign(bound) > abs(bound), b[:, k] * np.sign(bound) > abs(bound)
+        ok &= ~(out_a & out_b)
+        for out, p, q, cut in ((out_a & ok & ~out_b, a, b, cut_a), (out_b & ok & ~out_a, b, a, cut_b)):
+            if out.any():  # move p (outside) to the side, measured from q (inside): exact for huge p
+                p[out] = _cut(q[out], p[out], k, o, bound)
+                cut |= out
+    ok &= np.all(np.isfinite(a), axis=1) & np.all(np.isfinite(b), axis=1)
+    lo, hi = np.array([-hx, -hy]), np.array([hx, hy])
+    a, b = np.clip(a, lo, hi), np.clip(b, lo, hi)
+    parts: list[list[np.ndarray]] = []
+    for i in np.flatnonzero(ok):
+        if i > 0 and ok[i - 1] and not cut_b[i - 1] and not cut_a[i]:
+            parts[-1].append(b[i])
+        else:
+            parts.append([a[i], b[i]])
+    return [np.array(part) for part in parts]
+
+
+def _cut(inside: F64, outside: F64, k: int, o: int, bound: float) -> F64:
+    """Where segments from ``inside`` to ``outside`` cross coordinate ``k`` = ``bound``, computed
+    exactly (fractions): a visible cut of a line between 1e20 m points is a small difference of
+    huge numbers, which float arithmetic would lose."""
+    from fractions import Fraction
+
+    out = np.empty_like(inside)
+    out[:, k] = bound
+    for i, (q, p) in enumerate(zip(inside.tolist(), outside.tolist())):
+        qk, qo, pk, po = map(Fraction, (q[k], q[o], p[k], p[o]))
+        out[i, o] = float(qo + (po - qo) * (Fraction(bound) - qk) / (pk - qk))
+    return out
 
 
 def project_segments(xyz_lidar: np.ndarray, lidar2img_4x4: np.ndarray, near_m: float = NEAR_PLANE_M) -> F64:
@@ -121,11 +170,17 @@ def _camera_tile(
     A = np.array([[sx, 0, 0.5 * sx - 0.5, 0], [0, sy, 0.5 * sy - 0.5, 0], [0, 0, 1, 0], [0, 0, 0, 1.0]])
     P = A @ lidar2img(info_cam)
     thick = max(1, round(height / 135))
+    box = (CAMERA_RANGE_M, CAMERA_RANGE_M)
+
+    def segments(pts: np.ndarray) -> F64:
+        parts = [project_segments(ground_points_lidar(densify(part), lidar2ego, ground_z_ego), P)
+                 for part in clip_polyline(pts, box)]
+        return np.concatenate(parts) if parts else np.zeros((0, 2, 2))
+
     for cls, pts in vectors:
-        seg = project_segments(ground_points_lidar(densify(pts), lidar2ego, ground_z_ego), P)
-        _draw_segments(img, seg, _color_bgr(cls), 2 * thick)
+        _draw_segments(img, segments(pts), _color_bgr(cls), 2 * thick)
     for cls, pts, _ in preds:
-        seg = project_segments(ground_points_lidar(densify(pts), lidar2ego, ground_z_ego), P)
+        seg = segments(pts)
         _draw_segments(img, seg, (255, 255, 255), thick + 2)
         _draw_segments(img, seg, _color_bgr(cls), thick)
     cv2.putText(
@@ -154,13 +209,20 @@ def bev_panel(
     ego = px(np.array([[-0.9, -1.0], [0.9, -1.0], [0.9, 3.0], [-0.9, 3.0]]))
     cv2.fillPoly(img, [np.round(ego).astype(np.int32)], (120, 120, 120))
     thick = max(1, round(height_px / 240))
+    box = (hx + BEV_MARGIN_M, hy + BEV_MARGIN_M)
+
+    def draw(pts: np.ndarray, color, thickness: int) -> None:
+        for part in clip_polyline(pts, box):
+            p = px(part)
+            _draw_segments(img, np.stack([p[:-1], p[1:]], axis=1), color, thickness)
+
     for cls, pts in vectors:
-        p = px(pts)
-        _draw_segments(img, np.stack([p[:-1], p[1:]], axis=1), _color_bgr(cls), 2 * thick)
+        draw(pts, _color_bgr(cls), 2 * thick)
     for cls, pts, _ in preds:
-        p = px(pts)
-        _draw_segments(img, np.stack([p[:-1], p[1:]], axis=1), _color_bgr(cls), thick)
-        for x, y in np.round(p).astype(int):
+        draw(pts, _color_bgr(cls), thick)
+        inside = np.asarray(pts, dtype=np.float64)[:, :2]
+        inside = inside[np.all(np.abs(inside) <= box, axis=1)]
+        for x, y in np.round(px(inside)).astype(int):
             cv2.circle(img, (int(x), int(y)), thick + 1, _color_bgr(cls), -1, cv2.LINE_AA)
     cv2.rectangle(img, (0, 0), (width_px - 1, height_px - 1), (0, 0, 0), 1)
     return img
@@ -264,6 +326,7 @@ __all__ = [
     "CLASS_COLORS_RGB",
     "NUSCENES_CAMERAS",
     "bev_panel",
+    "clip_polyline",
     "ground_points_lidar",
     "load_predictions",
     "project_segments",
