@@ -14,7 +14,7 @@ from nuav2.cli_types import non_negative_int, number, positive_float
 
 # SynthConfig's checks as argparse types: seconds must give at least one 10 Hz sweep (round(10 s) >= 1,
 # so strictly more than 0.05 s), cameras a resolution factor > 0, lidar at least 8 rays per beam.
-synth_seconds = number(float, lo=0.05, lo_open=True)
+synth_seconds = number(float, lo=0.05, lo_open=True, hi=3600.0)  # an hour: real AV2 logs run 15-30 s
 synth_image_scale = positive_float
 lidar_azimuth_steps = number(int, lo=8)
 
@@ -73,3 +73,12 @@ def check_rig(name_or_path: str, flag: str = "--rig") -> None:
         load_rig(name_or_path)
     except RigSpecError as e:
         raise UsageError(f"{flag}: {e}") from None
+
+
+def require_outputs(args: argparse.Namespace) -> None:
+    """Refuse an unusable ``--out`` / ``--markdown`` / ``--plot`` before a benchmark's minutes of work
+    (a folder that is a file only failed at the end, after all of it)."""
+    from nuav2.cli_inputs import require_out_path
+
+    for name in ("out", "markdown", "plot"):
+        require_out_path(getattr(args, name, None), f"--{name}")

@@ -22,6 +22,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from nuav2.cli_types import path
+
 CUDA_TESTS = ("tests/test_raster_gsplat_parity.py", "tests/test_recon_cuda.py")
 
 
@@ -123,7 +125,7 @@ def print_table(runs: dict) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m nuav2.bench.gpu_check", description=__doc__.split("\n\n")[0])
-    p.add_argument("--out", type=Path, default=None, help="write the results as JSON here too")
+    p.add_argument("--out", type=path, default=None, help="write the results as JSON here too")
     p.add_argument("--seconds", type=float, default=2.0, help="synthetic log length (default: %(default)s)")
     p.add_argument("--iterations", type=int, default=None, help="override the fast preset's 600 iterations")
     p.add_argument("--tests-timeout", type=float, default=150.0, help="seconds for the pytest step")

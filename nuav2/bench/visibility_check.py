@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from nuav2.cli_types import path
 from nuav2.geometry import T_inverse, make_T, quat_to_rot
 from nuav2.nuscenes_db.tokens import make_token
 from nuav2.rig import CameraSpec
@@ -145,13 +146,13 @@ def measure_cost(log_dir: Path, rig_name: str | None, scale: float, skip_first: 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m nuav2.bench.visibility_check",
                                 description=__doc__.split("\n")[0])
-    p.add_argument("dataroot", type=Path)
-    p.add_argument("log_dir", type=Path)
+    p.add_argument("dataroot", type=path)
+    p.add_argument("log_dir", type=path)
     p.add_argument("--version", default="v1.0-nuav2")
     p.add_argument("--rig", default=None,
                    help="the conversion's --rig for the timing (default: the log's own cameras)")
     p.add_argument("--scale", type=float, default=1.0, help="the conversion's --scale for the timing")
-    p.add_argument("--json", type=Path, default=None, help="also write the result here")
+    p.add_argument("--json", type=path, default=None, help="also write the result here")
     args = p.parse_args(argv)
     result = {"dataroot": str(args.dataroot), "log_dir": str(args.log_dir),
               **agreement(oracle_fractions(args.dataroot, args.log_dir, args.version)),

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from nuav2.bench.cli_args import synth_image_scale, synth_seconds
 from nuav2.cli import group
-from nuav2.cli_types import non_negative_float, positive_float
+from nuav2.cli_types import non_negative_float, path, positive_float
 
 
 def _speed_seconds(text: str) -> float:
@@ -41,15 +41,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--modes", default="warp,render", help="conversion modes to score")
     p.add_argument("--speed-seconds", type=_speed_seconds, default=2.0,
                    help="log length of the synth speed measurement per preset, > 0.05 (0: skip)")
-    p.add_argument("--pictures", type=Path, default=None,
+    p.add_argument("--pictures", type=path, default=None,
                    help="write realism_<preset>.png (source | truth | warp | render) into this directory")
-    p.add_argument("--work-dir", type=Path, default=None, help="keep the logs and databases here")
-    p.add_argument("--out", type=Path, default=None, help="also write the JSON here")
-    p.add_argument("--markdown", type=Path, default=None, help="also write the docs' tables here")
-    p.add_argument("--from-json", type=Path, nargs="+", default=None,
+    p.add_argument("--work-dir", type=path, default=None, help="keep the logs and databases here")
+    p.add_argument("--out", type=path, default=None, help="also write the JSON here")
+    p.add_argument("--markdown", type=path, default=None, help="also write the docs' tables here")
+    p.add_argument("--from-json", type=path, nargs="+", default=None,
                    help="do not run: read saved results (--out) and write --markdown from them; with several "
                         "files, each later one's modes replace the earlier ones' (e.g. a --modes warp rerun)")
-    p.add_argument("--before", type=Path, default=None,
+    p.add_argument("--before", type=path, default=None,
                    help="a saved earlier result (--out): --markdown then also compares the two, factor by "
                         "factor, with the robustness goals (nuav2/bench/ablation_compare.py)")
     p.add_argument("--progress", action="store_true", help="show progress bars on stderr")
@@ -60,10 +60,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from nuav2.atomic import atomic_write_bytes, atomic_write_json
     from nuav2.bench.ablation import ABLATION_FACTORS, AblationOptions, bench_ablation, markdown_table
-    from nuav2.bench.cli_args import check_rig, command_line, parse_ints
+    from nuav2.bench.cli_args import check_rig, command_line, parse_ints, require_outputs
     from nuav2.cli import UsageError
     from nuav2.synth import PRESETS
 
+    require_outputs(args)
     before = None
     if args.before is not None:  # read first: a bad file fails before the long run
         from nuav2.bench.ablation_compare import compare_markdown, goals

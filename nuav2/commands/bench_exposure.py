@@ -4,11 +4,10 @@ from __future__ import annotations
 
 import argparse
 import json
-from pathlib import Path
 
 from nuav2.bench.cli_args import synth_seconds
 from nuav2.cli import group
-from nuav2.cli_types import non_negative_int, positive_int
+from nuav2.cli_types import non_negative_int, path, positive_int
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -25,21 +24,22 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=non_negative_int, default=0, help="world seed, >= 0")
     p.add_argument("--sample", type=positive_int, default=120,
                    help="source images scored, >= 1 (default: 120)")
-    p.add_argument("--work-dir", type=Path, default=None,
+    p.add_argument("--work-dir", type=path, default=None,
                    help="keep the log here (a later run with the same settings reuses it)")
-    p.add_argument("--out", type=Path, default=None, help="also write the JSON here")
-    p.add_argument("--markdown", type=Path, default=None, help="also write the docs' table here")
+    p.add_argument("--out", type=path, default=None, help="also write the JSON here")
+    p.add_argument("--markdown", type=path, default=None, help="also write the docs' table here")
     p.add_argument("--json", action="store_true", help="compact JSON on one line (the default is indented)")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     from nuav2.atomic import atomic_write_bytes, atomic_write_json
-    from nuav2.bench.cli_args import command_line
+    from nuav2.bench.cli_args import command_line, require_outputs
     from nuav2.bench.exposure import bench_exposure, markdown_table
     from nuav2.cli import UsageError
     from nuav2.synth import PRESETS
 
+    require_outputs(args)
     if args.preset not in PRESETS:
         raise UsageError(f"--preset {args.preset!r}: must be one of {', '.join(PRESETS)}")
     try:

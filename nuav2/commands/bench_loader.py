@@ -4,11 +4,10 @@ from __future__ import annotations
 
 import argparse
 import json
-from pathlib import Path
 
 from nuav2.bench.cli_args import synth_image_scale, synth_seconds
 from nuav2.cli import group, require_database
-from nuav2.cli_types import positive_float, positive_int
+from nuav2.cli_types import path, positive_float, positive_int
 
 SYNTHETIC_VERSION = "v1.0-nuav2"
 
@@ -23,7 +22,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "dataroot",
-        type=Path,
+        type=path,
         nargs="?",
         default=None,
         help="nuScenes-format dataroot (default: convert a fresh synthetic AV2 log)",

@@ -4,11 +4,10 @@ from __future__ import annotations
 
 import argparse
 import json
-from pathlib import Path
 
 from nuav2.bench.cli_args import synth_image_scale
 from nuav2.cli import group
-from nuav2.cli_types import positive_float, positive_int
+from nuav2.cli_types import path, positive_float, positive_int
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -32,9 +31,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--no-render", action="store_true", help="skip the Gaussian-splat render mode")
     p.add_argument("--recon-preset", choices=["default", "fast"], default="fast",
                    help="reconstruction settings for render mode")
-    p.add_argument("--work-dir", type=Path, default=None, help="keep the synthetic logs here (default: temp)")
-    p.add_argument("--out", type=Path, default=None, help="also write the JSON here")
-    p.add_argument("--markdown", type=Path, default=None,
+    p.add_argument("--work-dir", type=path, default=None, help="keep the synthetic logs here (default: temp)")
+    p.add_argument("--out", type=path, default=None, help="also write the JSON here")
+    p.add_argument("--markdown", type=path, default=None,
                    help="also write the docs' markdown tables (with how they were measured) here")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.add_argument("--json", action="store_true", help="compact JSON (default: indented)")
@@ -43,10 +42,18 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from nuav2.atomic import atomic_write_json
-    from nuav2.bench.cli_args import check_rig, command_line, parse_floats, parse_ints, parse_presets
+    from nuav2.bench.cli_args import (
+        check_rig,
+        command_line,
+        parse_floats,
+        parse_ints,
+        parse_presets,
+        require_outputs,
+    )
     from nuav2.bench.cli_args import synth_seconds as seconds_type
     from nuav2.bench.modes import bench_modes
 
+    require_outputs(args)
     presets = parse_presets(args.preset)  # a bad value: one line from nuav2.cli, before any work
     seconds = parse_floats(args.seconds, "--seconds", seconds_type)
     seeds = parse_ints(args.seeds, "--seeds")

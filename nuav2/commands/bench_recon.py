@@ -4,10 +4,9 @@ from __future__ import annotations
 
 import argparse
 import json
-from pathlib import Path
 
 from nuav2.cli import UsageError, group
-from nuav2.cli_types import number, positive_int
+from nuav2.cli_types import number, path, positive_int
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -20,7 +19,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "renders, per region (whole, ground, objects, sky), plus held-out source-view PSNR and "
                     "lane-paint alignment. Over several seeds it reports mean and spread, the seed the "
                     "presets were tuned on apart.")
-    p.add_argument("log_dir", type=Path, nargs="?", default=None, help="a synthetic log directory")
+    p.add_argument("log_dir", type=path, nargs="?", default=None, help="a synthetic log directory")
     p.add_argument("--preset", default="easy", help="synthetic realism preset(s): easy,medium,hard or all")
     p.add_argument("--seeds", default="0",
                    help="synthetic world seeds (each >= 0) when generating, comma-separated")
@@ -33,10 +32,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="hold out every k-th source image per camera, >= 2 (1 would hold out all)")
     p.add_argument("--times", type=positive_int, default=6,
                    help="sample times scored in the target rig, >= 1")
-    p.add_argument("--out", type=Path, default=None, help="also write the JSON here")
-    p.add_argument("--markdown", type=Path, default=None,
+    p.add_argument("--out", type=path, default=None, help="also write the JSON here")
+    p.add_argument("--markdown", type=path, default=None,
                    help="also write the docs' markdown tables (with how they were measured) here")
-    p.add_argument("--plot", type=Path, default=None, help="also write a PNG plot (PSNR against time) here")
+    p.add_argument("--plot", type=path, default=None, help="also write a PNG plot (PSNR against time) here")
     p.add_argument("--progress", action="store_true", help="show progress bars on stderr")
     p.add_argument("--json", action="store_true", help="compact JSON on one line (the default is indented)")
     p.set_defaults(func=run)
@@ -44,9 +43,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from nuav2.atomic import atomic_write_json
-    from nuav2.bench.cli_args import command_line, parse_ints, parse_presets
+    from nuav2.bench.cli_args import command_line, parse_ints, parse_presets, require_outputs
     from nuav2.bench.recon import SCENES, bench_recon, default_budgets, plot_bench
 
+    require_outputs(args)
     budgets = default_budgets()
     presets = parse_presets(args.preset)  # a bad value: one line from nuav2.cli
     seeds = parse_ints(args.seeds, "--seeds")

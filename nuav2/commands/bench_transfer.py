@@ -6,10 +6,9 @@ import argparse
 import json
 import shlex
 import sys
-from pathlib import Path
 
 from nuav2.cli import UsageError, group
-from nuav2.cli_types import non_negative_int, positive_int
+from nuav2.cli_types import non_negative_int, path, positive_int
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -24,7 +23,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "the same --out resumes (finished worlds, conversions and runs are reused). See "
         "docs/transfer.md.",
     )
-    p.add_argument("--out", type=Path, required=True, help="output folder (reused on a rerun)")
+    p.add_argument("--out", type=path, required=True, help="output folder (reused on a rerun)")
     size = p.add_mutually_exclusive_group()
     size.add_argument(
         "--quick", action="store_true", help="a smaller version (measured time in docs/transfer.md)"

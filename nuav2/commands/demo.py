@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from nuav2.cli_types import path
+
 
 def _run(args: argparse.Namespace) -> int:
     from nuav2.bench.cli_args import parse_presets
@@ -33,7 +35,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "seconds) replaces the previous run's synthetic log (av2/) and database (nuscenes/) "
                     "there; a rerun with the same options reuses the converted log. Smallest run: "
                     "--mode warp --scale 0.1 --seconds 0.3.")
-    p.add_argument("--out", type=Path, default=Path("nuav2_demo"),
+    p.add_argument("--out", type=path, default=Path("nuav2_demo"),
                    help="output directory (default: %(default)s)")
     p.add_argument("--seed", type=non_negative_int, default=0, help="world seed, >= 0 (default: %(default)s)")
     p.add_argument("--preset", default="easy",

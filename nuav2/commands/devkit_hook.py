@@ -6,7 +6,8 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from pathlib import Path
+
+from nuav2.cli_types import path
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -14,11 +15,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "devkit-hook", help="install the devkit's nuAV2 map registration at Python start-up (.pth)",
         description="install: write a .pth into site-packages so that unmodified nuScenes scripts in this "
                     "environment open nuAV2 map locations without `import nuav2` (it loads only the "
-                    "standalone devkit_hook file, ~15 ms, and patches the devkit lazily when it is "
+                    "standalone devkit_hook file, about 8 ms, and patches the devkit lazily when it is "
                     "imported); "
                     "uninstall: remove it; status: say whether it is there.")
     p.add_argument("action", choices=("install", "uninstall", "status"))
-    p.add_argument("--site-dir", type=Path, default=None,
+    p.add_argument("--site-dir", type=path, default=None,
                    help="directory to write the .pth into (default: this environment's site-packages)")
     p.set_defaults(func=run)
 

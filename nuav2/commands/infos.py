@@ -7,7 +7,7 @@ import json
 import sys
 from pathlib import Path
 
-from nuav2.cli_types import non_negative_int, positive_float, positive_int
+from nuav2.cli_types import non_negative_int, path, positive_float, positive_int
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -18,9 +18,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "and the devkit's lists of VERSION's nuScenes release that hold scenes (or those given), in the "
         "layout MapTRv2's nuScenes dataset reads.",
     )
-    p.add_argument("dataroot", type=Path, help="nuScenes-format dataroot")
+    p.add_argument("dataroot", type=path, help="nuScenes-format dataroot")
     p.add_argument("--version", help="table folder under DATAROOT (default: the only one there)")
-    p.add_argument("--out", required=True, type=Path, help="directory for the .pkl files")
+    p.add_argument("--out", required=True, type=path, help="directory for the .pkl files")
     p.add_argument("--prefix", default="nuav2",
                    help="file name prefix (default: %(default)s; MapTR uses 'nuscenes')")
     p.add_argument("--splits", nargs="+", default=None,

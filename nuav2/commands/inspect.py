@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from nuav2.cli_types import number
+from nuav2.cli_types import number, path
 
 # Camera-to-sweep sync tolerance in ms: positive; AV2 sweeps come every 100 ms, so a second is
 # far beyond any meaningful pairing (and keeps the value in nanoseconds an ordinary integer).
@@ -50,7 +50,23 @@ def summarize_log(log_dir: Path, calibration_dir: Path | None, require_cameras: 
     return out
 
 
+def _refuse_split_folder(log_dir: Path) -> None:
+    """A split folder (``.../train``) given for a log: say so, instead of the reader's complaint about
+    its missing calibration."""
+    from nuav2.cli import UsageError
+
+    parts = ("city_SE3_egovehicle.feather", "sensors")
+    if not log_dir.is_dir() or any((log_dir / part).exists() for part in parts):
+        return
+    logs = sorted(c.name for c in log_dir.iterdir() if (c / "city_SE3_egovehicle.feather").is_file())
+    if logs:
+        more = f", ... ({len(logs)} in all)" if len(logs) > 3 else ""
+        raise UsageError(f"{log_dir}: not an AV2 log folder; it holds log folders "
+                         f"({', '.join(logs[:3])}{more}): give one of them")
+
+
 def _run(args: argparse.Namespace) -> int:
+    _refuse_split_folder(args.log_dir)
     summary = summarize_log(args.log_dir, args.calibration_dir, not args.allow_missing_cameras,
                             args.tolerance_ms)
     print(json.dumps(summary, indent=1))
@@ -59,8 +75,8 @@ def _run(args: argparse.Namespace) -> int:
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser("inspect", help="summarise what the AV2 reader finds in one log (JSON)")
-    p.add_argument("log_dir", type=Path, help="an AV2 sensor log directory")
-    p.add_argument("--calibration", "--calibration-dir", dest="calibration_dir", type=Path, default=None,
+    p.add_argument("log_dir", type=path, help="an AV2 sensor log directory")
+    p.add_argument("--calibration", "--calibration-dir", dest="calibration_dir", type=path, default=None,
                    help="calibration to use instead of LOG_DIR/calibration (for fragments without one)")
     p.add_argument("--allow-missing-cameras", action="store_true",
                    help="read a log whose camera images are missing instead of failing")

@@ -8,6 +8,8 @@ import os
 import time
 from pathlib import Path
 
+from nuav2.cli_types import path
+
 
 def _dir_size(path: Path) -> tuple[int, int]:
     files = [p for p in path.rglob("*") if p.is_file()]
@@ -57,7 +59,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "content, noisy lidar and labels; hard: also shadows, sky and camera exposure; see "
                     "docs/realism.md). Prints a JSON summary with the wall and CPU time per frame (one 10 Hz "
                     "sweep plus its 20 Hz camera images), with and without building the world.")
-    p.add_argument("out_dir", type=Path, help="dataset root; the log goes to OUT_DIR/<split>/<log_id>/")
+    p.add_argument("out_dir", type=path, help="dataset root; the log goes to OUT_DIR/<split>/<log_id>/")
     p.add_argument("--seed", type=non_negative_int, default=0,
                    help="world seed (>= 0): layout, actors, offsets, timestamps (default: %(default)s)")
     p.add_argument("--preset", choices=PRESETS, default="easy", help="realism preset (default: easy)")

@@ -7,7 +7,7 @@ import json
 import sys
 from pathlib import Path
 
-from nuav2.cli_types import non_negative_int
+from nuav2.cli_types import non_negative_int, path
 from nuav2.nuscenes_db.validate import DEFAULT_MAX_PER_KIND, validate_database
 
 
@@ -16,7 +16,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "validate", help="check a nuScenes database against what nuscenes-devkit and MapTR need",
         description="Exit 0 with per-table counts if DATAROOT/VERSION conforms, else 1 with every problem "
                     "grouped by table (at most --max-per-kind of each kind listed).")
-    p.add_argument("dataroot", type=Path, help="nuScenes dataroot (holds VERSION/, samples/, sweeps/, maps/)")
+    p.add_argument("dataroot", type=path, help="nuScenes dataroot (holds VERSION/, samples/, sweeps/, maps/)")
     p.add_argument("--version", help="table folder under DATAROOT, e.g. v1.0-trainval (default: the only one "
                                      "there)")
     p.add_argument("--no-files", action="store_true", help="skip sample_data files and map PNGs")
