@@ -37,7 +37,7 @@ from nuav2.nuscenes_db.rewrites import (
 from nuav2.nuscenes_db.scene_names import SceneNameError
 from nuav2.nuscenes_db.scene_names import scene_names_for as _scene_names
 from nuav2.nuscenes_db.writer import WRITER_FORMAT, WriterOptions, write_log
-from nuav2.rig import RigSpecError, load_rig
+from nuav2.rig import RigSpecError, load_rig, scaled_side
 
 log = logging.getLogger(__name__)
 
@@ -117,10 +117,9 @@ class ConvertOptions:
         (checked before scaling the rig: ``--scale 1e308`` would make an infinite width)."""
         def side(px: int) -> float:  # as CameraSpec.scaled rounds it
             try:
-                v = px * self.scale
-            except OverflowError:  # a rig spec's width of hundreds of digits
+                return scaled_side(px, self.scale)
+            except OverflowError:  # an infinite product, or a rig spec's width of hundreds of digits
                 return math.inf
-            return max(1, round(v)) if math.isfinite(v) else math.inf
 
         sizes = [(c.channel, side(c.width), side(c.height)) for c in rig.cameras]
         big = sorted((s for s in sizes if max(s[1:]) > MAX_IMAGE_SIDE_PX), key=lambda s: -max(s[1:]))

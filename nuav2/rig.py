@@ -25,6 +25,11 @@ class RigSpecError(ValueError):
     """A rig spec file is malformed; the message names the file and field."""
 
 
+def scaled_side(px: int, scale: float) -> int:
+    """An image side of ``px`` pixels at ``scale``: rounded, at least 1 (OverflowError when infinite)."""
+    return max(1, int(round(px * scale)))
+
+
 @dataclass(frozen=True)
 class CameraSpec:
     """One pinhole camera: intrinsics at ``width`` x ``height`` and its pose in the ego frame."""
@@ -39,8 +44,7 @@ class CameraSpec:
 
     def scaled(self, scale: float) -> CameraSpec:
         """Same camera at ``scale`` times the resolution; pixel centres map (x+0.5)*s-0.5."""
-        w = max(1, int(round(self.width * scale)))
-        h = max(1, int(round(self.height * scale)))
+        w, h = scaled_side(self.width, scale), scaled_side(self.height, scale)
         sx, sy = w / self.width, h / self.height
         K = self.K.copy()
         K[0, 0] *= sx
