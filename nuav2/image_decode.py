@@ -10,6 +10,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from nuav2.nuscenes_db.images import ImageSourceError
+
 _REDUCED_JPEG = {2: cv2.IMREAD_REDUCED_COLOR_2, 4: cv2.IMREAD_REDUCED_COLOR_4, 8: cv2.IMREAD_REDUCED_COLOR_8}
 
 
@@ -53,17 +55,17 @@ def jpeg_cut_short(data: bytes) -> bool:
 
 
 def read_bgr(path: Path, flags: int = cv2.IMREAD_COLOR) -> np.ndarray:
-    """A camera image decoded by cv2 from its bytes, read once; ValueError naming the file when it is
-    missing, does not decode, or is a JPEG cut short."""
+    """A camera image decoded by cv2 from its bytes, read once; ImageSourceError (a ValueError) naming
+    the file when it is missing, does not decode, or is a JPEG cut short."""
     try:
         data = Path(path).read_bytes()
     except OSError as e:
-        raise ValueError(f"{path}: camera image missing or unreadable ({e.strerror})") from None
+        raise ImageSourceError(f"{path}: camera image missing or unreadable ({e.strerror})") from None
     if jpeg_cut_short(data):
-        raise ValueError(f"{path}: camera image cut short (no JPEG end-of-image marker)")
+        raise ImageSourceError(f"{path}: camera image cut short (no JPEG end-of-image marker)")
     bgr = cv2.imdecode(np.frombuffer(data, np.uint8), flags)
     if bgr is None:
-        raise ValueError(f"{path}: camera image does not decode")
+        raise ImageSourceError(f"{path}: camera image does not decode")
     return bgr
 
 

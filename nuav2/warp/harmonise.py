@@ -30,7 +30,6 @@ from nuav2.exposure import (
 )
 from nuav2.geometry import F64, T_inverse, translation_T
 from nuav2.image_decode import load_image_u8
-from nuav2.nuscenes_db.images import ImageSourceError
 from nuav2.rig import CameraSpec
 from nuav2.scene import CameraFrame, SceneLog
 from nuav2.warp.depth_proxy import free_of_boxes
@@ -48,11 +47,7 @@ def read_reduced(path: Path, camera: CameraSpec,
     """uint8 RGB image at about ``width_px`` wide (decoded reduced where that is exact) and its camera."""
     scale = min(1.0, width_px / camera.width)
     small = camera.scaled(scale) if scale < 1.0 else camera
-    try:
-        img = load_image_u8(path, small.width, small.height, (camera.width, camera.height))
-    except ValueError as e:
-        raise ImageSourceError(str(e)) from None  # names the file and what is wrong with it
-    return img, small
+    return load_image_u8(path, small.width, small.height, (camera.width, camera.height)), small
 
 
 def static_points(scene: SceneLog, sweep_points: Callable[[int], F64]) -> F64:

@@ -116,10 +116,7 @@ def half_diagonal_fov(camera: CameraSpec) -> float:
 
 def read_rgb(path: Path, camera: CameraSpec) -> np.ndarray:
     """uint8 RGB image; raises ImageSourceError naming the file when unreadable or the wrong size."""
-    try:
-        img = read_bgr(path)
-    except ValueError as e:
-        raise ImageSourceError(str(e)) from None
+    img = read_bgr(path)
     if img.shape[:2] != (camera.height, camera.width):
         raise ImageSourceError(f"{path}: image is {img.shape[1]}x{img.shape[0]} but the calibration of "
                                f"{camera.channel} says {camera.width}x{camera.height}")
