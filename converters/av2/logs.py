@@ -20,7 +20,7 @@ def _logs_in(split_dir: Path) -> list[Path]:
     ``.<log id>.<tmp>.partial`` dir that may already hold the pose file). A dir that cannot be
     looked into is kept: its conversion fails and is reported, and the other logs still convert."""
     return sorted(p for p in split_dir.iterdir()
-                  if p.is_dir() and not p.name.startswith(".") and _maybe_log_dir(p))
+                  if p.is_dir() and not p.name.startswith(".") and maybe_log_dir(p))
 
 
 # What else a log dir holds: one that has these but no pose file is a damaged log (a partial
@@ -28,7 +28,8 @@ def _logs_in(split_dir: Path) -> list[Path]:
 _LOG_PARTS = ("sensors", "calibration", "annotations.feather", "map")
 
 
-def _maybe_log_dir(path: Path) -> bool:
+def maybe_log_dir(path: Path) -> bool:
+    """A log dir, or what is left of one (its parts without the pose file)."""
     try:
         return is_log_dir(path) or any((path / part).exists() for part in _LOG_PARTS)
     except PermissionError:

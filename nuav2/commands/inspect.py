@@ -53,16 +53,19 @@ def summarize_log(log_dir: Path, calibration_dir: Path | None, require_cameras: 
 def _refuse_split_folder(log_dir: Path) -> None:
     """A split folder (``.../train``) given for a log: say so, instead of the reader's complaint about
     its missing calibration."""
+    from converters.av2 import AV2LogError, find_logs
+    from converters.av2.logs import maybe_log_dir
     from nuav2.cli import UsageError
 
-    parts = ("city_SE3_egovehicle.feather", "sensors")
-    if not log_dir.is_dir() or any((log_dir / part).exists() for part in parts):
+    if not log_dir.is_dir() or maybe_log_dir(log_dir):
         return
-    logs = sorted(c.name for c in log_dir.iterdir() if (c / "city_SE3_egovehicle.feather").is_file())
-    if logs:
-        more = f", ... ({len(logs)} in all)" if len(logs) > 3 else ""
-        raise UsageError(f"{log_dir}: not an AV2 log folder; it holds log folders "
-                         f"({', '.join(logs[:3])}{more}): give one of them")
+    try:
+        logs = [p.name for p in find_logs(log_dir)]
+    except AV2LogError:
+        return  # no logs in it either: the reader's own message names what is missing
+    more = f", ... ({len(logs)} in all)" if len(logs) > 3 else ""
+    raise UsageError(f"{log_dir}: not an AV2 log folder; it holds log folders "
+                     f"({', '.join(logs[:3])}{more}): give one of them")
 
 
 def _run(args: argparse.Namespace) -> int:
