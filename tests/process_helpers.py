@@ -34,18 +34,23 @@ def signal_state(pid: int) -> str:
     return " ".join(ln.replace("\t", "") for ln in lines if ln.startswith(("SigBlk", "SigIgn", "SigCgt")))
 
 
-def interrupt(proc: subprocess.Popen, timeout_s: float = 60.0, again_after_s: float = 3.0) -> tuple[str, str]:
+def interrupt(proc: subprocess.Popen, timeout_s: float = 60.0,
+              again_after_s: float = 10.0) -> tuple[str, str, int]:
     """Ctrl-C ``proc`` (SIGINT), and again if it is still running ``again_after_s`` later, as a user
     would. Seen once in a full run here: the first SIGINT had no effect (exit 0, nothing on stderr, the
     log complete). Our guess: the KeyboardInterrupt was raised while C code ran Python for it and was
     cleared with that code's error (``PyObject_HasAttr`` and library fallbacks do that). Returns
-    (stderr, the signal masks before the first)."""
+    (stderr, the signal masks before the first, how many SIGINTs were sent): a second one can reach
+    a process that handled the first and is still exiting, whose interpreter has by then given
+    SIGINT back its default action, so it ends by the signal (-2) instead of its exit code."""
     state = signal_state(proc.pid)
     end = time.monotonic() + timeout_s
+    sent = 0
     while True:
         proc.send_signal(signal.SIGINT)
+        sent += 1
         try:
             _, err = proc.communicate(timeout=min(again_after_s, max(0.1, end - time.monotonic())))
-            return err, state
+            return err, state, sent
         except subprocess.TimeoutExpired:
             assert time.monotonic() < end, f"still running {timeout_s:.0f} s after SIGINT; before it: {state}"

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -218,9 +219,12 @@ def test_an_interrupted_synth_leaves_nothing_behind(tmp_path: Path):
     try:
         wait_while_running(proc, lambda: (out / "train").is_dir() and any((out / "train").iterdir()), 120,
                            "synth never started writing", poll_s=0.05)
-        err, sig_state = interrupt(proc)
+        err, sig_state, sent = interrupt(proc)
     finally:
         proc.kill()
-    assert proc.returncode == 130 and err.strip().splitlines()[-1:] == ["interrupted"], \
-        f"exit {proc.returncode}, {sig_state}: {err}"
+    # the CLI handled the Ctrl-C (cleaned up, said so, exit 130); a second SIGINT, sent when the
+    # first seemed lost, may end the exit itself by the signal, which a shell also shows as 130
+    ended_by_second = sent > 1 and proc.returncode == -signal.SIGINT
+    assert (proc.returncode == 130 or ended_by_second) and err.strip().splitlines()[-1:] == ["interrupted"], \
+        f"exit {proc.returncode} after {sent} SIGINT, {sig_state}: {err}"
     assert list(tmp_path.iterdir()) == []
