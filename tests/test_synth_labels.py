@@ -10,7 +10,7 @@ import pytest
 
 from nuav2.synth import SynthConfig, build_world, cast_sweep
 from nuav2.synth.labels import FRAME_JITTER_M, FRAME_YAW_DEG, LabelNoiseParts, label_errors
-from nuav2.synth.log_writer import annotation_rows
+from nuav2.synth.log_writer import annotation_rows, stored_xyz
 
 JITTER_ONLY = LabelNoiseParts(track_offset=False, size=False, frame_jitter=True, missed=False)
 T0_NS = 1_650_000_000_123_456_789
@@ -68,7 +68,7 @@ def test_parked_cars_read_as_parked_and_cruisers_do_not_accelerate(noisy_world):
     centres: dict[str, dict[int, np.ndarray]] = {}
     for ts in w.timeline.sweeps_ns:
         ts = int(ts)
-        rows = annotation_rows(w, ts, cast_sweep(w, ts).box)
+        rows = annotation_rows(w, ts, (ret := cast_sweep(w, ts)).box, stored_xyz(ret))
         city_T_ego = w.city_T_ego_at(ts)
         for k, uid in enumerate(rows["track_uuid"]):
             p = city_T_ego @ np.array([rows["tx_m"][k], rows["ty_m"][k], rows["tz_m"][k], 1.0])

@@ -15,7 +15,7 @@ from nuav2.synth.boxes import BoxSet, intersect_rays
 from nuav2.synth.camera_effects import CameraEffects
 from nuav2.synth.layouts import build_plan, draw_params, plan_layout
 from nuav2.synth.light import in_shadow, shadow_grid, sky_color
-from nuav2.synth.log_writer import annotation_rows
+from nuav2.synth.log_writer import annotation_rows, stored_xyz
 from nuav2.synth.motion import ego_motion, turn_kind
 from nuav2.synth.terrain import CROSS_FALL, KERB_H
 from nuav2.synth.world import EGO_ORIGIN_HEIGHT_M
@@ -252,7 +252,7 @@ def test_label_noise_offsets_jitter_sizes_and_misses(medium):
     rows, truth = [], []
     for ts in noisy.timeline.sweeps_ns:
         ts = int(ts)
-        rows.append(annotation_rows(noisy, ts, cast_sweep(noisy, ts).box))
+        rows.append(annotation_rows(noisy, ts, (ret := cast_sweep(noisy, ts)).box, stored_xyz(ret)))
         truth.append(noisy.actor_poses_at(ts))
     n_true = sum(len(t.track_uuid) for t in truth)
     n_rows = sum(len(r["track_uuid"]) for r in rows)

@@ -82,16 +82,38 @@ def calibration_tables(world: SyntheticWorld) -> tuple[pa.Table, pa.Table]:
     return extr, intr
 
 
+def stored_xyz(ret) -> np.ndarray:
+    """A sweep's points as AV2 stores them (float16 in the ego frame), widened back to float64."""
+    return ret.xyz_ego.astype(np.float16).astype(np.float64)
+
+
 def sweep_table(ret) -> pa.Table:
-    xyz = ret.xyz_ego.astype(np.float16)
+    xyz = stored_xyz(ret)
     return pa.table({"x": pa.array(xyz[:, 0], pa.float16()), "y": pa.array(xyz[:, 1], pa.float16()),
                      "z": pa.array(xyz[:, 2], pa.float16()), "intensity": pa.array(ret.intensity, pa.uint8()),
                      "laser_number": pa.array(ret.laser_number, pa.uint8()),
                      "offset_ns": pa.array(ret.offset_ns, pa.int32())})
 
 
-def annotation_rows(world: SyntheticWorld, timestamp_ns: int, box_hits: np.ndarray) -> dict[str, list]:
-    """Cuboids of the actors in the ego frame at a sweep; ``box_hits`` are the sweep's solid indices."""
+def interior_counts(xyz_ego: np.ndarray, ego_T_box: np.ndarray, size_lwh: np.ndarray) -> np.ndarray:
+    """Points inside each cuboid, faces included (AV2's ``num_interior_pts``). Counted on the
+    points as written (float16), not on the ray hits: hits lie on the actor's faces, and rounding
+    puts about half of them just outside its box."""
+    counts = np.zeros(len(ego_T_box), dtype=np.int64)
+    order = np.argsort(xyz_ego[:, 0], kind="stable")
+    xs = xyz_ego[order, 0]
+    for k, (T, lwh) in enumerate(zip(ego_T_box, size_lwh)):
+        reach = 0.5 * float(np.linalg.norm(lwh)) + 1e-6  # the box's bounding sphere, along x
+        lo, hi = np.searchsorted(xs, [T[0, 3] - reach, T[0, 3] + reach], side="left")
+        local = (xyz_ego[order[lo:hi]] - T[:3, 3]) @ T[:3, :3]
+        counts[k] = np.count_nonzero(np.all(np.abs(local) <= 0.5 * lwh, axis=1))
+    return counts
+
+
+def annotation_rows(world: SyntheticWorld, timestamp_ns: int, box_hits: np.ndarray,
+                    xyz_written: np.ndarray) -> dict[str, list]:
+    """Cuboids of the actors in the ego frame at a sweep; ``box_hits`` are the sweep's solid indices
+    (what an annotator sees of each actor), ``xyz_written`` its points as stored (ego frame)."""
     poses = world.actor_poses_at(timestamp_ns)
     ego_T_city = T_inverse(world.city_T_ego_at(timestamp_ns))
     ego_T_box = ego_T_city[None] @ poses.city_T_box
@@ -104,6 +126,7 @@ def annotation_rows(world: SyntheticWorld, timestamp_ns: int, box_hits: np.ndarr
         ego_T_box, size, kept = label_errors(world.seed, poses.track_uuid, timestamp_ns, ego_T_box, size,
                                              counts)
         keep = np.flatnonzero(kept)
+    counts = interior_counts(xyz_written, ego_T_box, size)  # in the boxes as labelled
     q, t = T_to_quat_trans(ego_T_box[keep])
     n = len(keep)
     return {"timestamp_ns": [int(timestamp_ns)] * n, "track_uuid": [poses.track_uuid[i] for i in keep],
@@ -154,7 +177,7 @@ def write_log(world: SyntheticWorld, log_dir: Path, split: str = "train", progre
         ret = cast_sweep(world, ts)
         n_points += len(ret.offset_ns)
         _write_feather(log_dir / "sensors" / "lidar" / f"{ts}.feather", sweep_table(ret))
-        rows.append(annotation_rows(world, ts, ret.box))
+        rows.append(annotation_rows(world, ts, ret.box, stored_xyz(ret)))
         for cam in cams:
             for img_ts in tl.images_ns[cam.channel][2 * k: 2 * k + 2]:
                 city_T_cam = world.city_T_ego_at(int(img_ts)) @ cam.ego_T_cam
