@@ -17,7 +17,11 @@ import numpy as np
 from nuav2.geometry import F64, T_from_quat_trans, T_to_quat_trans, translation_T
 
 RIG_SPEC_DIR = Path(__file__).resolve().parent.parent / "rig_specs"
-CHANNEL_RE = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
+CHANNEL_RE = re.compile(r"^[A-Za-z][A-Za-z0-9_]{0,63}$")  # at most 64: it goes into every file name
+KEYFRAME_LIDAR = "LIDAR_TOP"  # what the devkit, MapTR and the detection eval read from sample['data']
+CAMERA_FIELDS = {"channel", "width", "height", "fx", "fy", "cx", "cy", "translation", "rotation",
+                 "ego_mask_polygons"}
+LIDAR_FIELDS = {"channel", "translation", "rotation"}
 UNIT_QUAT_TOL = 1e-6
 
 
@@ -147,9 +151,44 @@ def _need(d: dict, key: str, where: str, src: str):
 
 
 def _number(v, where: str, src: str) -> float:
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v):
+    try:
+        x = float(v) if isinstance(v, (int, float)) and not isinstance(v, bool) else float("nan")
+    except OverflowError:  # a JSON integer beyond float range
+        x = float("inf")
+    if not np.isfinite(x):
         raise RigSpecError(f"{src}: field '{where}' must be a finite number, got {v!r}")
-    return float(v)
+    return x
+
+
+def _known_fields(d: dict, known: set[str], where: str, src: str) -> None:
+    """A misspelt optional field (``ego_mask_polygon``) would silently drop what it held."""
+    unknown = sorted(set(d) - known)
+    if unknown:
+        raise RigSpecError(f"{src}: unknown field(s) {unknown} in '{where.rstrip('.')}' "
+                           f"(known: {sorted(known)})")
+
+
+def _text(v, where: str, src: str) -> str:
+    if not isinstance(v, str):
+        raise RigSpecError(f"{src}: field '{where}' must be a string, got {v!r}")
+    return v
+
+
+def _mask_polygons(c: dict, where: str, src: str) -> tuple[np.ndarray, ...]:
+    raw = c.get("ego_mask_polygons", [])
+    if not isinstance(raw, list):
+        raise RigSpecError(f"{src}: field '{where}ego_mask_polygons' must be a list of polygons, got {raw!r}")
+    polys = []
+    for j, p in enumerate(raw):
+        try:
+            arr = np.asarray(p, dtype=np.float64)
+        except (TypeError, ValueError, OverflowError):
+            arr = np.zeros((0, 0))
+        if arr.ndim != 2 or arr.shape[1] != 2 or len(arr) < 3 or not np.all(np.isfinite(arr)):
+            raise RigSpecError(
+                f"{src}: field '{where}ego_mask_polygons[{j}]' must be >= 3 finite [x, y] points")
+        polys.append(arr)
+    return tuple(polys)
 
 
 def _vector(v, n: int, where: str, src: str) -> np.ndarray:
@@ -181,7 +220,11 @@ def rig_from_dict(spec: dict, src: str = "<dict>") -> Rig:
     """Validate and build a :class:`Rig`; every error names ``src`` and the field."""
     if not isinstance(spec, dict):
         raise RigSpecError(f"{src}: top level must be a JSON object")
-    name = _need(spec, "name", "", src)
+    name = _text(_need(spec, "name", "", src), "name", src)
+    description = _text(spec.get("description", ""), "description", src)
+    extra = spec.get("extra", {})
+    if not isinstance(extra, dict):
+        raise RigSpecError(f"{src}: field 'extra' must be a JSON object, got {extra!r}")
     origin_h = _number(_need(spec, "origin_height_m", "", src), "origin_height_m", src)
     cams_raw = _need(spec, "cameras", "", src)
     if not isinstance(cams_raw, list) or not cams_raw:
@@ -191,6 +234,7 @@ def rig_from_dict(spec: dict, src: str = "<dict>") -> Rig:
     for i, c in enumerate(cams_raw):
         w = f"cameras[{i}]."
         ch = _channel(c, w, src, seen)
+        _known_fields(c, CAMERA_FIELDS, w, src)
         width = _need(c, "width", w, src)
         height = _need(c, "height", w, src)
         for key, v in (("width", width), ("height", height)):
@@ -202,28 +246,29 @@ def rig_from_dict(spec: dict, src: str = "<dict>") -> Rig:
                 raise RigSpecError(f"{src}: field '{w}{key}' must be a positive focal length, got {v}")
         cx, cy = (_number(_need(c, k, w, src), w + k, src) for k in ("cx", "cy"))
         K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
-        polys = []
-        for j, p in enumerate(c.get("ego_mask_polygons", [])):
-            arr = np.asarray(p, dtype=np.float64)
-            if arr.ndim != 2 or arr.shape[1] != 2 or len(arr) < 3 or not np.all(np.isfinite(arr)):
-                raise RigSpecError(
-                    f"{src}: field '{w}ego_mask_polygons[{j}]' must be >= 3 finite [x, y] points")
-            polys.append(arr)
-        cameras.append(CameraSpec(ch, width, height, K, _pose(c, w, src), tuple(polys)))
+        cameras.append(CameraSpec(ch, width, height, K, _pose(c, w, src), _mask_polygons(c, w, src)))
+    lidars_raw = _need(spec, "lidars", "", src)
+    if not isinstance(lidars_raw, list):
+        raise RigSpecError(f"{src}: field 'lidars' must be a list, got {lidars_raw!r}")
     lidars = []
-    for i, lid in enumerate(_need(spec, "lidars", "", src)):
+    for i, lid in enumerate(lidars_raw):
         w = f"lidars[{i}]."
         lidars.append(LidarSpec(_channel(lid, w, src, seen), _pose(lid, w, src)))
+        _known_fields(lid, LIDAR_FIELDS, w, src)
     key_lidar = _need(spec, "keyframe_lidar", "", src)
+    if key_lidar != KEYFRAME_LIDAR:  # the one LiDAR channel a nuScenes database has
+        raise RigSpecError(f"{src}: field 'keyframe_lidar' must be {KEYFRAME_LIDAR!r} (the devkit, MapTR and "
+                           f"the detection eval read sample['data']['{KEYFRAME_LIDAR}']), "
+                           f"got {key_lidar!r}")
     if key_lidar not in {lid.channel for lid in lidars}:
-        raise RigSpecError(f"{src}: field 'keyframe_lidar' names unknown channel {key_lidar!r}")
+        raise RigSpecError(f"{src}: field 'lidars' has no {KEYFRAME_LIDAR!r} entry, which 'keyframe_lidar' "
+                           f"names")
     known = {"name", "description", "origin_height_m", "keyframe_lidar", "cameras", "lidars", "extra"}
     unknown = sorted(set(spec) - known)
     if unknown:
         raise RigSpecError(f"{src}: unknown top-level field(s) {unknown}")
-    return Rig(name=str(name), origin_height_m=origin_h, cameras=tuple(cameras), lidars=tuple(lidars),
-               keyframe_lidar=key_lidar, description=str(spec.get("description", "")), source_path=src,
-               extra=dict(spec.get("extra", {})))
+    return Rig(name=name, origin_height_m=origin_h, cameras=tuple(cameras), lidars=tuple(lidars),
+               keyframe_lidar=key_lidar, description=description, source_path=src, extra=dict(extra))
 
 
 def available_rigs() -> list[str]:

@@ -313,6 +313,19 @@ def test_missing_annotations_give_empty_boxes(tmp_log, caplog):
     assert "no annotations file" in caplog.text
 
 
+@pytest.mark.parametrize("split", ["train", "val"])
+def test_missing_annotations_in_a_labelled_split_fail_the_log(tmp_log, split):
+    """A partial download must not put unlabelled scenes into a training set without a word."""
+    log_dir = tmp_log(parent=split)
+    (log_dir / "annotations.feather").unlink()
+    with pytest.raises(AV2LogError, match=f"missing; every AV2 {split} log ships its boxes") as err:
+        read_log(log_dir, require_cameras=False)
+    assert str(log_dir / "annotations.feather") in str(err.value)
+    test_dir = tmp_log(parent="test", name="ffffffff-0510-35b0-a2fa-b4cea13a6d76")
+    (test_dir / "annotations.feather").unlink()
+    assert len(read_log(test_dir, require_cameras=False).annotations) == 0
+
+
 def test_sweep_outside_pose_table_is_dropped(tmp_log, caplog):
     log_dir = tmp_log()
     early = log_dir / "sensors/lidar" / f"{SWEEP_TS - 1_000 * MS}.feather"

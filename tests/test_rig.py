@@ -173,6 +173,26 @@ def _set(spec, key, value, cam=0):
     (lambda s: _set(s, "translation", [1.0, 2.0]), "cameras[0].translation"),
     (lambda s: _set(s, "cx", float("nan")), "cameras[0].cx"),
     (lambda s: _set(s, "ego_mask_polygons", [[[0, 0], [1, 1]]]), "cameras[0].ego_mask_polygons[0]"),
+    # wrong JSON types, each was an internal TypeError or a message naming neither file nor field
+    (lambda s: s.update(lidars=5), "lidars"),
+    (lambda s: s.update(lidars=None), "lidars"),
+    (lambda s: s.update(keyframe_lidar=["LIDAR_TOP"]), "keyframe_lidar"),
+    (lambda s: s.update(extra=[1, 2]), "extra"),
+    (lambda s: s.update(name=None), "name"),
+    (lambda s: s.update(description=5), "description"),
+    (lambda s: _set(s, "ego_mask_polygons", None), "cameras[0].ego_mask_polygons"),
+    (lambda s: _set(s, "ego_mask_polygons", "abc"), "cameras[0].ego_mask_polygons"),
+    (lambda s: _set(s, "ego_mask_polygons", [[[0, 0], [1], [2, 2]]]), "cameras[0].ego_mask_polygons[0]"),
+    (lambda s: _set(s, "fx", 10 ** 400), "cameras[0].fx"),
+    # a name too long for the file names it goes into (failed every log late, with errno 36)
+    (lambda s: _set(s, "channel", "C" * 65), "cameras[0].channel"),
+    # a misspelt optional field silently dropped the ego mask
+    (lambda s: _set(s, "ego_mask_polygon", [[[0, 0], [9, 0], [9, 9]]]), "cameras[0]"),
+    (lambda s: s["lidars"][0].update(rotaton=[1, 0, 0, 0]), "lidars[0]"),
+    # nuScenes has one LiDAR channel, LIDAR_TOP; another name converted to a database no consumer reads
+    (lambda s: (s["lidars"][0].update(channel="LIDAR_X"), s.update(keyframe_lidar="LIDAR_X")),
+     "keyframe_lidar"),
+    (lambda s: s["lidars"][0].update(channel="LIDAR_X"), "lidars"),
 ])
 def test_validation_errors_name_file_and_field(tmp_path, mutate, field):
     path = _mutated(tmp_path, mutate)

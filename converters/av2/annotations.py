@@ -15,6 +15,7 @@ from nuav2.scene import Annotations
 log = logging.getLogger(__name__)
 
 ANNOTATIONS_FILE = "annotations.feather"
+LABELLED_SPLITS = ("train", "val")  # AV2 ships boxes with every log of these; test has none
 FLOAT_COLUMNS = ("length_m", "width_m", "height_m", "qw", "qx", "qy", "qz", "tx_m", "ty_m", "tz_m")
 COLUMNS = {"timestamp_ns": INTEGER, "track_uuid": TEXT, "category": TEXT,
            **dict.fromkeys(FLOAT_COLUMNS, NUMBER), "num_interior_pts": INTEGER}
@@ -35,9 +36,16 @@ def _first_repeat(track: np.ndarray, ts: np.ndarray) -> tuple[int, int] | None:
 
 
 def read_annotations(log_dir: Path) -> Annotations:
-    """All cuboids of the log, in file order; a log without the file (test split) gets none (logged)."""
+    """All cuboids of the log, in file order. A log without the file gets none (logged), unless it
+    sits in a train/ or val/ folder: there a missing file is a partial download, and its scenes
+    would enter a training or validation set unlabelled."""
     path = log_dir / ANNOTATIONS_FILE
     if not path.exists():
+        split = Path(log_dir).parent.name
+        if split in LABELLED_SPLITS:
+            raise AV2LogError(path, f"missing; every AV2 {split} log ships its boxes (only test has "
+                              f"none): download the log again, or move it to a test/ folder to convert "
+                              f"it without boxes")
         log.info("%s: no annotations file (test split?); the log gets no boxes", path)
         return Annotations.empty()
     cols = read_columns(path, COLUMNS)
