@@ -457,7 +457,7 @@ def convert_av2(src: Path, out: Path, options: ConvertOptions | None = None) -> 
     if not done:
         first = report.failed[0] if report.failed else None
         why = f"{first['log_dir']}: {first['error']}" if first else "no log to convert"
-        many = f" ({len(report.failed)} failed; the first:" if len(report.failed) > 1 else ""
+        many = f" ({len(report.failed)} failed; the first" if len(report.failed) > 1 else ""
         raise ConvertError(f"no log converted{many}: {why}{')' if many else ''}; see {out / REPORT_FILE}")
     return report
 
