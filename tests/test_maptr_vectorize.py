@@ -133,6 +133,45 @@ def test_boundary_hole_is_a_closed_counter_clockwise_ring():
     assert len(rings) == 1 and LinearRing(rings[0].coords).is_ccw
 
 
+def _turn_backs(lines, min_arm_m: float = 0.5) -> list:
+    """Vertices where a line runs out (an arm over ``min_arm_m``) and turns back by over 90 deg."""
+    out = []
+    for line in lines:
+        xy = np.asarray(line.coords)
+        for a, b, c in zip(xy[:-2], xy[1:-1], xy[2:]):
+            u, v = b - a, c - b
+            if min(np.hypot(*u), np.hypot(*v)) > min_arm_m and u @ v < 0:
+                out.append(b.tolist())
+    return out
+
+
+def test_a_sub_millimetre_gap_between_road_pieces_leaves_no_needle_in_the_boundary():
+    # R3's bottom edge should lie on the top edge of R1 and R2; its corner sits 0.3 mm above it and
+    # the edge dips under it 7.5 m further on: the union's outline ran 7.5 m into that wedge and
+    # straight back (seen at a converted synthetic T-junction, there 2.3 m)
+    r1, r2 = box(-10, 0, 0, 5), box(0, 0, 10, 5)
+    r3 = Polygon([(-5, 5.0003), (5, 4.9999), (5, 10), (-5, 10)])
+    clean = Polygon([(-5, 5), (5, 5), (5, 10), (-5, 10)])
+    got = contour_lines([r1, r2, r3], (15.0, 30.0), -0.2)
+    want = contour_lines([r1, r2, clean], (15.0, 30.0), -0.2)
+    assert _turn_backs(got) == [] and len(got) == len(want) == 1
+    assert LineString(got[0].coords).hausdorff_distance(LineString(want[0].coords)) < 1e-3
+
+
+def test_drop_needles_keeps_real_corners():
+    from nuav2.maptr.ring_needles import drop_needles
+
+    square = np.array([[0, 0], [0, 4], [4, 4], [4, 0], [0, 0]], float)
+    assert np.array_equal(drop_needles(square), square)
+    # a sharp but real spur, 5 mm wide at its base over 2 m: kept
+    spur = np.array([[0, 0], [0, 4], [2, 4], [2, 4.005], [-2, 4.0025], [-2, 6], [4, 6], [4, 0], [0, 0]])
+    assert np.array_equal(drop_needles(spur), spur)
+    # the same spur 0.1 mm wide is a gap in the data: its two tip corners go, and nothing else
+    thin = spur.copy()
+    thin[3, 1], thin[4, 1] = 4.0001, 4.00005
+    assert np.array_equal(drop_needles(thin), np.delete(thin, [2, 3], axis=0))
+
+
 def test_ring_cut_at_its_start_vertex_is_merged_back():
     # a U-shaped road whose outline's start vertex is in the middle of a kept piece
     u = Polygon([(0, -40), (5, -40), (5, 10), (-5, 10), (-5, -40), (-1, -40), (-1, 5), (0, 5)])

@@ -28,11 +28,12 @@ from pathlib import Path
 
 import numpy as np
 import shapely
-from shapely.geometry import LineString, Polygon, box
+from shapely.geometry import LinearRing, LineString, Polygon, box
 from shapely.geometry.base import BaseGeometry
 from shapely.geometry.polygon import orient
 
 from nuav2.geometry import F64, T_from_quat_trans, yaw_of
+from nuav2.maptr.ring_needles import drop_needles
 
 log = logging.getLogger(__name__)
 
@@ -154,14 +155,16 @@ def contour_lines(
         return []
     # Pieces clipped one by one and moved into the patch frame no longer share edges bit for bit;
     # a plain union then leaves zero-area sliver holes along them. Snapping to a nanometre grid
-    # removes those, and any ring that still encloses (almost) nothing is dropped.
+    # removes those, and any ring that still encloses (almost) nothing is dropped. Gaps wider than
+    # the grid (a vertex a fraction of a mm off its neighbour's edge) leave needles: cut those.
     union = shapely.unary_union(polys, grid_size=UNION_GRID_M)
     hx, hy = half_extent_xy
     clip = box(-hx - margin_m, -hy - margin_m, hx + margin_m, hy + margin_m)
     lines: list[LineString] = []
     for poly in _polygons([union]):
         oriented = orient(poly, sign=-1.0)  # exterior CW, interiors CCW
-        rings = [oriented.exterior, *oriented.interiors]
+        rings = [LinearRing(drop_needles(np.asarray(r.coords)))
+                 for r in (oriented.exterior, *oriented.interiors)]
         for ring in [r for r in rings if Polygon(r).area >= MIN_RING_AREA_M2]:
             cut = ring.intersection(clip)
             if cut.is_empty:
