@@ -84,6 +84,20 @@ def test_geo_split_carves_a_densely_connected_city():
     assert share(splits, pos, "train") > 0.6
 
 
+def test_geo_split_keeps_train_when_whole_groups_miss_the_shares():
+    """Groups of 60, 40, 20 and 20 samples for 0.5 / 0.25 / 0.25: the 40 fits no share's slack. It
+    went to train, then val and test were carved out of the 60-sample group, discarding the rest:
+    train ended empty and 3 of 7 scenes were dropped (seen on 7 converted synthetic logs)."""
+    drive = np.stack([np.linspace(0, 95, 20), np.zeros(20)], 1)
+    starts = {"a0": 0, "a1": 10, "a2": 20, "b0": 1000, "b1": 1010, "c": 2000, "d": 3000}
+    pos = {name: drive + [x, 5.0 * i] for i, (name, x) in enumerate(starts.items())}
+    city = dict.fromkeys(pos, "pit")
+    splits = geo_split(pos, city, ratios=(0.5, 0.25, 0.25), min_distance_m=200.0)
+    assert splits["discarded"] == [] and sorted(splits["train"]) == ["a0", "a1", "a2"]
+    assert min_holdout_train_distance(splits, pos, city) > 200.0
+    assert sorted(splits["val"] + splits["test"]) == ["b0", "b1", "c", "d"]
+
+
 def test_different_cities_never_leak():
     pos = {"a": np.zeros((3, 2)), "b": np.zeros((3, 2))}
     assert leakage({"train": ["a"], "val": ["b"]}, pos, 5.0, {"a": "x", "b": "y"})["val"] == 0.0

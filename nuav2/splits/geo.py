@@ -111,6 +111,15 @@ class _State:
     def deficit(self, split: str) -> float:
         return self.target[split] - self.count(split)
 
+    def cost(self, moved: Mapping[str, int] | None = None) -> float:
+        """How far the split is from its ratios: squared relative errors of the splits' sample
+        counts, plus the discarded samples weighed like a train shortfall (dropping data is never
+        free, even where train is over its share). ``moved`` adds samples to splits first."""
+        moved = moved or {}
+        err = sum(((self.count(s) + moved.get(s, 0) - t) / t) ** 2 for s, t in self.target.items() if t > 0)
+        scale = self.target["train"] if self.target["train"] > 0 else float(self.sizes.sum())
+        return err + ((self.count(DISCARDED) + moved.get(DISCARDED, 0)) / scale) ** 2
+
 
 def _carve_region(
     comp: list[int],
@@ -181,12 +190,11 @@ def geo_split(
     comps = [comps[i] for i in rng.permutation(len(comps))]  # seed decides among equal sizes
     comps.sort(key=lambda c: -int(sizes[c].sum()))
     slack = {s: 0.1 * target[s] for s in SPLITS}
-    for comp in comps:
+    for comp in comps:  # each whole component to the split it brings closest to the ratios
         size = int(sizes[comp].sum())
-        order = sorted(SPLITS, key=lambda s: -(state.deficit(s) / target[s]) if target[s] > 0 else np.inf)
-        dest = next((s for s in order if target[s] > 0 and size <= state.deficit(s) + slack[s]), "train")
+        dest = min((s for s in SPLITS if target[s] > 0), key=lambda s: state.cost({s: size}))
         state.members[dest].update(comp)
-    for split in HOLDOUT:  # carve what whole components could not give
+    for split in HOLDOUT:  # carve what whole components could not give, while that is worth its ring
         while state.deficit(split) > slack[split]:
             train_comps = [c for c in _components_within(state.members["train"], adj) if len(c) > 1]
             if not train_comps:
@@ -194,6 +202,9 @@ def geo_split(
             comp = max(train_comps, key=lambda c: (int(sizes[c].sum()), -min(c)))
             region, ring = _carve_region(comp, state.deficit(split), adj, scene_positions, scenes, sizes, rng)
             ring &= state.members["train"]
+            got, lost = int(sizes[region].sum()), int(sizes[list(ring)].sum())
+            if state.cost({split: got, "train": -got - lost, DISCARDED: lost}) >= state.cost():
+                break  # the carve (and the train scenes it discards) would leave the split worse
             state.members["train"] -= set(region) | ring
             state.members[split].update(region)
             state.members[DISCARDED].update(ring)
