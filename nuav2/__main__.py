@@ -1,7 +1,5 @@
 """``python -m nuav2`` runs the CLI."""
 
-import sys
+from nuav2.entry import run
 
-from nuav2.cli import main
-
-sys.exit(main())
+run()

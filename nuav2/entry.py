@@ -1,0 +1,41 @@
+"""The ``nuav2`` command's entry point. A Ctrl-C while the CLI loads its libraries (about a
+second) is held until they are loaded, then ends the run with "interrupted" and exit 130, as one
+during the work does: raised inside a library's import it showed a traceback, or numpy's
+"Importing the numpy C-extensions failed" (exit 1)."""
+
+from __future__ import annotations
+
+import signal
+import sys
+from typing import NoReturn
+
+
+def _load_cli_held() -> bool:
+    """Import the CLI and its commands with SIGINT held; True if one arrived meanwhile. A process
+    that ignores SIGINT (a background job) keeps ignoring it."""
+    held: list[int] = []
+    hold = signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    if hold:
+        signal.signal(signal.SIGINT, lambda signum, frame: held.append(signum))
+    try:
+        from nuav2 import cli
+
+        cli.command_modules()
+    finally:
+        if hold:
+            signal.signal(signal.SIGINT, signal.default_int_handler)
+    return bool(held)
+
+
+def run() -> NoReturn:
+    """Run the CLI; ``cli.main`` handles interrupts once the libraries are in."""
+    try:
+        if _load_cli_held():
+            raise KeyboardInterrupt
+        from nuav2.cli import main
+
+        code = main()
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        code = 128 + signal.SIGINT
+    sys.exit(code)

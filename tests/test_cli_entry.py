@@ -1,0 +1,40 @@
+"""The ``nuav2`` entry point: a Ctrl-C while the CLI is still importing its libraries."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from process_helpers import default_sigint
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def _importing_libraries(pid: int) -> bool:
+    """The process has mapped numpy's extension: past Python's own start-up (where a Ctrl-C is
+    Python's fatal error, not ours) and into the CLI's imports, which take about a second."""
+    try:
+        return "numpy" in Path(f"/proc/{pid}/maps").read_text()
+    except OSError:
+        return False
+
+
+def test_ctrl_c_during_start_up_says_interrupted_without_a_traceback(tmp_path: Path):
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    proc = subprocess.Popen([sys.executable, "-m", "nuav2", "validate", str(tmp_path / "none")], env=env,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=default_sigint)
+    try:
+        end = time.monotonic() + 30
+        while not _importing_libraries(proc.pid) and proc.poll() is None and time.monotonic() < end:
+            time.sleep(0.001)
+        assert proc.poll() is None, "nuav2 finished before the interrupt could be sent"
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        proc.kill()
+    assert proc.returncode == 130 and err.strip().splitlines() == ["interrupted"], (proc.returncode, err)
