@@ -172,6 +172,43 @@ def test_drop_needles_keeps_real_corners():
     assert np.array_equal(drop_needles(thin), np.delete(thin, [2, 3], axis=0))
 
 
+def test_a_needle_sampled_along_its_length_is_cut_whole():
+    """A gap along a densely sampled road edge: each side of the needle has 50 vertices."""
+    from nuav2.maptr.ring_needles import drop_needles
+
+    square = np.array([[0, 0], [0, 10], [10, 10], [10, 0]], float)
+    out = np.c_[np.linspace(10, 30, 51)[1:], np.full(50, 5.0)]
+    back = np.c_[np.linspace(30, 10, 51)[1:-1], 5.0 - np.linspace(2e-4, 1e-4, 49)]
+    ring = np.vstack([square[:3], [10, 5.0], out, back, [10, 5.0 - 1e-4], square[3:], square[:1]])
+    got = drop_needles(ring)
+    assert got[:, 0].max() == 10.0 and Polygon(got).area == pytest.approx(100.0)
+
+
+def test_sliver_rings_between_road_pieces_do_not_become_boundaries():
+    """Road quads whose shared corners are up to 0.5 mm apart: the union encloses holes under
+    1 mm wide and metres long, which came out as closed boundary rings (a few clockwise)."""
+    rng = np.random.default_rng(0)
+    slivers = rings = 0
+    for _ in range(300):
+        nx, ny = rng.integers(2, 4), rng.integers(2, 4)
+        xs, ys = np.cumsum(rng.uniform(2, 8, nx + 1)), np.cumsum(rng.uniform(2, 8, ny + 1))
+        pieces = []
+        for i in range(nx):
+            for j in range(ny):
+                if rng.random() < 0.3:
+                    continue
+                c = np.array([[xs[i], ys[j]], [xs[i + 1], ys[j]], [xs[i + 1], ys[j + 1]], [xs[i], ys[j + 1]]])
+                c = c + rng.uniform(-5e-4, 5e-4, c.shape) * (rng.random(c.shape) < 0.5)
+                c -= [(xs[0] + xs[-1]) / 2, (ys[0] + ys[-1]) / 2]
+                if Polygon(c).is_valid:
+                    pieces.append(Polygon(c))
+        for line in contour_lines(pieces, (30.0, 30.0), -0.2) if pieces else []:
+            if line.is_closed:
+                rings += 1
+                slivers += 2 * Polygon(line.coords).area / line.length < 1e-3
+    assert rings > 0 and slivers == 0
+
+
 def test_ring_cut_at_its_start_vertex_is_merged_back():
     # a U-shaped road whose outline's start vertex is in the middle of a kept piece
     u = Polygon([(0, -40), (5, -40), (5, 10), (-5, 10), (-5, -40), (-1, -40), (-1, 5), (0, 5)])

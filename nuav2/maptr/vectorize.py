@@ -30,10 +30,9 @@ import numpy as np
 import shapely
 from shapely.geometry import LinearRing, LineString, Polygon, box
 from shapely.geometry.base import BaseGeometry
-from shapely.geometry.polygon import orient
 
 from nuav2.geometry import F64, T_from_quat_trans, yaw_of
-from nuav2.maptr.ring_needles import drop_needles
+from nuav2.maptr.ring_needles import drop_needles, is_sliver
 
 log = logging.getLogger(__name__)
 
@@ -156,16 +155,22 @@ def contour_lines(
     # Pieces clipped one by one and moved into the patch frame no longer share edges bit for bit;
     # a plain union then leaves zero-area sliver holes along them. Snapping to a nanometre grid
     # removes those, and any ring that still encloses (almost) nothing is dropped. Gaps wider than
-    # the grid (a vertex a fraction of a mm off its neighbour's edge) leave needles: cut those.
+    # the grid (a vertex a fraction of a mm off its neighbour's edge) leave needles and sliver
+    # rings: cut the needles, drop the slivers, and orient what is left again.
     union = shapely.unary_union(polys, grid_size=UNION_GRID_M)
     hx, hy = half_extent_xy
     clip = box(-hx - margin_m, -hy - margin_m, hx + margin_m, hy + margin_m)
     lines: list[LineString] = []
     for poly in _polygons([union]):
-        oriented = orient(poly, sign=-1.0)  # exterior CW, interiors CCW
-        rings = [LinearRing(drop_needles(np.asarray(r.coords)))
-                 for r in (oriented.exterior, *oriented.interiors)]
-        for ring in [r for r in rings if Polygon(r).area >= MIN_RING_AREA_M2]:
+        rings = []
+        for k, r in enumerate((poly.exterior, *poly.interiors)):
+            ring = LinearRing(drop_needles(np.asarray(r.coords)))
+            if Polygon(ring).area < MIN_RING_AREA_M2 or is_sliver(np.asarray(ring.coords)):
+                continue
+            if ring.is_ccw == (k == 0):  # exterior clockwise, holes counter-clockwise
+                ring = LinearRing(ring.coords[::-1])
+            rings.append(ring)
+        for ring in rings:
             cut = ring.intersection(clip)
             if cut.is_empty:
                 continue
