@@ -116,12 +116,6 @@ def group(name: str, help: str) -> argparse._SubParsersAction:
     return _GROUPS[name]
 
 
-def command_modules() -> list:
-    """Every ``nuav2.commands`` module, imported (with the libraries they load: about a second)."""
-    names = sorted(m.name for m in pkgutil.iter_modules(nuav2.commands.__path__))
-    return [importlib.import_module(f"nuav2.commands.{name}") for name in names]
-
-
 def build_parser() -> argparse.ArgumentParser:
     global _TOP
     _GROUPS.clear()
@@ -129,8 +123,8 @@ def build_parser() -> argparse.ArgumentParser:
         prog="nuav2", description="Argoverse 2 -> nuScenes databases, re-rendered into any camera rig.")
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     _TOP = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    for module in command_modules():
-        module.register(_TOP)
+    for mod in sorted(pkgutil.iter_modules(nuav2.commands.__path__), key=lambda m: m.name):
+        importlib.import_module(f"nuav2.commands.{mod.name}").register(_TOP)
     return parser
 
 

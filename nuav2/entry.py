@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import signal
 import sys
+import threading
 from typing import NoReturn
 
 
@@ -14,13 +15,14 @@ def _load_cli_held() -> bool:
     """Import the CLI and its commands with SIGINT held; True if one arrived meanwhile. A process
     that ignores SIGINT (a background job) keeps ignoring it."""
     held: list[int] = []
-    hold = signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    hold = (threading.current_thread() is threading.main_thread()  # signal.signal's rule
+            and signal.getsignal(signal.SIGINT) is signal.default_int_handler)
     if hold:
         signal.signal(signal.SIGINT, lambda signum, frame: held.append(signum))
     try:
         from nuav2 import cli
 
-        cli.command_modules()
+        cli.build_parser()  # the commands' register() import more (av2, cv2, pyarrow, pyproj)
     finally:
         if hold:
             signal.signal(signal.SIGINT, signal.default_int_handler)

@@ -38,3 +38,26 @@ def test_ctrl_c_during_start_up_says_interrupted_without_a_traceback(tmp_path: P
     finally:
         proc.kill()
     assert proc.returncode == 130 and err.strip().splitlines() == ["interrupted"], (proc.returncode, err)
+
+
+def test_the_entry_point_runs_outside_the_main_thread(monkeypatch, capsys):
+    """Only the main thread may set signal handlers: elsewhere the hold is skipped, not a crash."""
+    import threading
+
+    from nuav2 import entry
+
+    monkeypatch.setattr(sys, "argv", ["nuav2", "validate", "/nonexistent/db"])
+    codes: list = []
+
+    def target() -> None:
+        try:
+            entry.run()
+        except SystemExit as e:
+            codes.append(e.code)
+        except BaseException as e:  # noqa: BLE001 - the failure the test reports
+            codes.append(repr(e))
+
+    worker = threading.Thread(target=target)
+    worker.start()
+    worker.join(60)
+    assert codes == [2] and "dataroot not found" in capsys.readouterr().err
