@@ -98,6 +98,15 @@ def test_geo_split_keeps_train_when_whole_groups_miss_the_shares():
     assert sorted(splits["val"] + splits["test"]) == ["b0", "b1", "c", "d"]
 
 
+def test_geo_split_fills_holdouts_from_small_components_when_it_can():
+    """One 150-sample log and 85 of 10, all far apart: 0.8 / 0.1 / 0.1 can be met exactly. Sending
+    each component where it lowered the cost most put the 150 into val (share 0.15)."""
+    pos = {f"s{i:03d}": np.stack([np.arange(n) * 1.0, np.full(n, 1000.0 * i)], 1)
+           for i, n in enumerate([150] + [10] * 85)}
+    splits = geo_split(pos, dict.fromkeys(pos, "c"), ratios=(0.8, 0.1, 0.1), min_distance_m=50.0)
+    assert [share(splits, pos, k) for k in ("train", "val", "test", "discarded")] == [0.8, 0.1, 0.1, 0.0]
+
+
 def test_different_cities_never_leak():
     pos = {"a": np.zeros((3, 2)), "b": np.zeros((3, 2))}
     assert leakage({"train": ["a"], "val": ["b"]}, pos, 5.0, {"a": "x", "b": "y"})["val"] == 0.0

@@ -6,10 +6,11 @@ scored on places they memorised. Three ways to split, all per scene (``splits.js
 scene names, as the devkit's custom splits and ``nuav2.maptr`` read it):
 
 * :func:`geo_split`: scenes joined by "some sample pair closer than ``min_distance_m``" form
-  connected components per city; whole components go where they leave the split closest to
-  its ratios, and when val/test are still short, a spatially compact region is carved out of the
-  largest train component, the train scenes touching it being *discarded* rather than leaking
-  (only where that brings the split closer to its ratios, discards counting as lost train).
+  connected components per city; whole components go to the split furthest below its ratio
+  (or, by two other rules, where they leave the split closest to its ratios; the best of the
+  three results is kept), and when val/test are still short, a spatially compact region is
+  carved out of the largest train component, the train scenes touching it being *discarded*
+  rather than leaking (only where that brings the split closer to its ratios).
 * :func:`region_split`: hand-drawn val/test polygons per city (Lilja et al.): a scene whose
   samples all lie inside a val (test) polygon goes there, one that straddles a boundary is
   dropped (or kept in train), the rest is train.

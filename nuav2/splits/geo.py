@@ -159,6 +159,57 @@ def _carve_region(
     return region, ring
 
 
+ASSIGN_RULES = ("fit", "fit_else_cost", "cost")
+
+
+def _assign_and_carve(
+    rule: str,
+    target: dict[str, float],
+    sizes: np.ndarray,
+    adj: list[set[int]],
+    positions: Positions,
+    scenes: Sequence[str],
+    seed: int,
+) -> _State:
+    """One candidate split. Whole components, largest first, go: ``fit``: to the split furthest
+    below its ratio that they fit (its shortfall plus 10 % of its target), else to train;
+    ``fit_else_cost``: the same, else where the cost is least; ``cost``: where the cost is least.
+    Then val/test regions are carved out of train while a carve lowers the cost."""
+    state = _State(sizes, target)
+    rng = np.random.default_rng(seed)
+    comps = _components(adj)
+    comps = [comps[i] for i in rng.permutation(len(comps))]  # seed decides among equal sizes
+    comps.sort(key=lambda c: -int(sizes[c].sum()))
+    slack = {s: 0.1 * target[s] for s in SPLITS}
+    open_splits = [s for s in SPLITS if target[s] > 0]
+    for comp in comps:
+        size = int(sizes[comp].sum())
+        dest = None
+        if rule != "cost":
+            by_need = sorted(open_splits, key=lambda s: -state.deficit(s) / target[s])
+            dest = next((s for s in by_need if size <= state.deficit(s) + slack[s]), None)
+            if dest is None and rule == "fit":
+                dest = "train"
+        if dest is None:
+            dest = min(open_splits, key=lambda s: state.cost({s: size}))
+        state.members[dest].update(comp)
+    for split in HOLDOUT:  # carve what whole components could not give, while that is worth its ring
+        while state.deficit(split) > slack[split]:
+            train_comps = [c for c in _components_within(state.members["train"], adj) if len(c) > 1]
+            if not train_comps:
+                break
+            comp = max(train_comps, key=lambda c: (int(sizes[c].sum()), -min(c)))
+            region, ring = _carve_region(comp, state.deficit(split), adj, positions, scenes, sizes, rng)
+            ring &= state.members["train"]
+            got, lost = int(sizes[region].sum()), int(sizes[list(ring)].sum())
+            if state.cost({split: got, "train": -got - lost, DISCARDED: lost}) >= state.cost():
+                break  # the carve (and the train scenes it discards) would leave the split worse
+            state.members["train"] -= set(region) | ring
+            state.members[split].update(region)
+            state.members[DISCARDED].update(ring)
+    return state
+
+
 def geo_split(
     scene_positions: Positions,
     city_of: Mapping[str, str],
@@ -183,31 +234,12 @@ def geo_split(
     sizes = np.array([len(np.asarray(scene_positions[s]).reshape(-1, 2)) for s in scenes], dtype=np.int64)
     total = float(sizes.sum())
     target = {s: r / sum(ratios) * total for s, r in zip(SPLITS, ratios)}
-    state = _State(sizes, target)
-    rng = np.random.default_rng(seed)
     adj = scene_adjacency(scene_positions, city_of, min_distance_m, scenes)
-    comps = _components(adj)
-    comps = [comps[i] for i in rng.permutation(len(comps))]  # seed decides among equal sizes
-    comps.sort(key=lambda c: -int(sizes[c].sum()))
-    slack = {s: 0.1 * target[s] for s in SPLITS}
-    for comp in comps:  # each whole component to the split it brings closest to the ratios
-        size = int(sizes[comp].sum())
-        dest = min((s for s in SPLITS if target[s] > 0), key=lambda s: state.cost({s: size}))
-        state.members[dest].update(comp)
-    for split in HOLDOUT:  # carve what whole components could not give, while that is worth its ring
-        while state.deficit(split) > slack[split]:
-            train_comps = [c for c in _components_within(state.members["train"], adj) if len(c) > 1]
-            if not train_comps:
-                break
-            comp = max(train_comps, key=lambda c: (int(sizes[c].sum()), -min(c)))
-            region, ring = _carve_region(comp, state.deficit(split), adj, scene_positions, scenes, sizes, rng)
-            ring &= state.members["train"]
-            got, lost = int(sizes[region].sum()), int(sizes[list(ring)].sum())
-            if state.cost({split: got, "train": -got - lost, DISCARDED: lost}) >= state.cost():
-                break  # the carve (and the train scenes it discards) would leave the split worse
-            state.members["train"] -= set(region) | ring
-            state.members[split].update(region)
-            state.members[DISCARDED].update(ring)
+    # No single greedy rule is best: "fit" meets the ratios where small components can fill the
+    # holdouts, "cost" where a component fits no share. Each runs in full; the closest result wins.
+    runs = [_assign_and_carve(rule, target, sizes, adj, scene_positions, scenes, seed)
+            for rule in ASSIGN_RULES]
+    state = min(runs, key=lambda st: st.cost())  # first of equals: "fit"
     out = {k: sorted(scenes[i] for i in v) for k, v in state.members.items()}
     _assert_disjoint(out, scene_positions, city_of, min_distance_m)
     return out
