@@ -32,6 +32,7 @@ class BatchProgress:
         self.failed += failed
         if running is not None:
             self.running = running
+        self.running = min(self.running, self.total - self.done)  # the last line said running=1
         postfix = {"failed": self.failed, "running": self.running}
         if not self.tty:
             eta = self.eta_s()
