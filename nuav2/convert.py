@@ -102,6 +102,8 @@ class ConvertOptions:
                 ReconConfig.preset(self.recon_preset)
             except ValueError as e:
                 raise ConvertError(f"--recon-preset: {e}") from e
+            if not 0.0 <= self.min_confidence <= 1.0:  # NaN fails too: it would drop nothing
+                raise ConvertError(f"--min-confidence must be a number in [0, 1], got {self.min_confidence}")
             self._check_device()
         if self.mode != "native":
             if not 0 < self.scale < math.inf:

@@ -269,6 +269,8 @@ def render_provider(splat: SplatScene, *, min_confidence: float = 0.0, quality: 
                     progress: bool = False) -> SplatImageSource:
     """A writer ``ImageSource`` (render mode) over ``splat``; its ``renderer`` is the plain RenderFn
     and keeps per-image quality records (``renderer.records``)."""
+    if not 0.0 <= min_confidence <= 1.0:  # NaN fails too: it would drop nothing
+        raise ValueError(f"min_confidence must be in [0, 1], got {min_confidence}")
     if min_confidence > 0 and not quality:
         raise ValueError("min_confidence needs the quality gate (quality=True)")
     qcfg = quality_config or QualityConfig()

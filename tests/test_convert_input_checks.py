@@ -70,6 +70,21 @@ def test_scale_up_to_the_largest_image_is_accepted():
     ConvertOptions(mode="render", rig="av2", scale=8).check()  # AV2's 2048 px -> 16384
 
 
+@pytest.mark.parametrize("value", ["1.5", "-1", "nan", "inf"])
+def test_min_confidence_outside_0_1_is_refused_before_out(tmp_path: Path, value: str):
+    """A confidence is in [0, 1]: above 1 dropped every sample after the whole reconstruction (and
+    was blamed on camera sync); nan and negatives were accepted and dropped nothing."""
+    src, out = fake_split(tmp_path / "src"), tmp_path / "out"
+    code, err = run("convert", "av2", src, out, "--mode", "render", "--min-confidence", value,
+                    "--no-progress")
+    refused(code, err, "--min-confidence")
+    assert not out.exists()
+    from nuav2.convert import ConvertError, ConvertOptions
+
+    with pytest.raises(ConvertError, match=r"--min-confidence must be a number in \[0, 1\]"):
+        ConvertOptions(mode="render", min_confidence=float(value)).check()
+
+
 def test_rig_spec_wider_than_the_largest_image_is_refused(tmp_path: Path):
     import json
 

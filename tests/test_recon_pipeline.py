@@ -200,14 +200,22 @@ def test_provider_renders_records_quality_and_drops_low_confidence(trained, tiny
     off = translation_T(y=40.0) @ poses["CAM_FRONT"]
     source.render("CAM_FRONT", cam, off, t + 1)
     assert source.render.coverage["CAM_FRONT"][t + 1] < conf - 0.2
-    # min_confidence: a threshold above every camera's confidence drops every sample time.
-    strict = render_provider(trained, min_confidence=1.01)
     times = tiny_scene.sweep_timestamps_ns[:2]
-    shots = strict.shots(tiny_scene, rig, times)
-    assert all(len(v) == 0 for v in shots.values()) and strict.dropped
     lenient = render_provider(trained, min_confidence=0.05)
     shots = lenient.shots(tiny_scene, rig, times)
     assert all(len(v) == len(times) for v in shots.values())
+    # min_confidence: a threshold above some camera's confidence at every time leaves no sample
+    # time; that is said as such (the writer would blame the cameras' sync for "no samples").
+    weakest = [min(lenient._cache[(c.channel, int(t), c.width, c.height)] for c in rig.cameras)
+               for t in times]
+    assert max(weakest) < 0.999
+    strict = render_provider(trained, min_confidence=max(weakest) + 1e-3)
+    with pytest.raises(ValueError, match="leaves out all 2 sample times"):
+        strict.shots(tiny_scene, rig, times)
+    assert strict.dropped
+    for bad in (1.01, -0.1, float("nan")):  # nan would drop nothing
+        with pytest.raises(ValueError, match=r"min_confidence must be in \[0, 1\]"):
+            render_provider(trained, min_confidence=bad)
 
 
 def test_render_image_store_writes_jpeg(trained, tiny_scene, tmp_path):

@@ -9,7 +9,7 @@ import sys
 from pathlib import Path
 
 from nuav2.cli import group
-from nuav2.cli_types import path
+from nuav2.cli_types import number, path
 from nuav2.image_sources import MODES
 
 log = logging.getLogger(__name__)
@@ -101,7 +101,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "(default: nuscenes)")
     p.add_argument("--scale", type=float, default=None,
                    help="warp/render/truth: target image resolution factor, e.g. 0.25 (default: 1)")
-    p.add_argument("--min-confidence", type=float, default=None,
+    p.add_argument("--min-confidence", type=number(float, lo=0.0, hi=1.0), default=None,
                    help="render: leave out sample times where a target camera's confidence is below this "
                         "(default: 0)")
     p.add_argument("--recon-preset", default=None,

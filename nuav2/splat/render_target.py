@@ -164,6 +164,12 @@ class SplatImageSource:
                     bad.add(t)
                     self.dropped.append({"channel": cam.channel, "timestamp_ns": int(t),
                                          "confidence": float(self._cache[key])})
+        if times and len(bad) == len(times):  # else the writer blames the cameras' sync
+            best = max(min(self._cache[(c.channel, t, c.width, c.height)] for c in out_rig.cameras)
+                       for t in times)
+            raise ValueError(f"--min-confidence {self.min_confidence:g} leaves out all {len(times)} sample "
+                             f"times: at each one some target camera is below it (the best time's "
+                             f"weakest camera: {best:.3f}); lower it to keep samples")
         return {ch: [s for s in lst if s.timestamp_ns not in bad] for ch, lst in shots.items()}
 
     def extension(self, shot) -> str:
