@@ -218,6 +218,18 @@ def test_provider_renders_records_quality_and_drops_low_confidence(trained, tiny
             render_provider(trained, min_confidence=bad)
 
 
+def test_a_non_finite_or_non_rigid_camera_pose_is_refused_not_rendered_as_sky(trained, tiny_scene):
+    rig = load_rig("nuscenes", scale=TARGET_SCALE).with_origin_height(0.0)
+    t = int(tiny_scene.sweep_timestamps_ns[0])
+    pose = target_city_T_cams(tiny_scene, rig, t)["CAM_FRONT"]
+    nan_pose, skewed = pose.copy(), pose.copy()
+    nan_pose[0, 3] = np.nan
+    skewed[:3, :3] *= 2.0
+    for bad, words in ((nan_pose, "must be finite"), (skewed, "must be rigid")):
+        with pytest.raises(ValueError, match=words):
+            trained.render(rig.camera("CAM_FRONT"), bad, t)
+
+
 def test_render_image_store_writes_jpeg(trained, tiny_scene, tmp_path):
     import cv2
 

@@ -348,8 +348,12 @@ class SplatScene:
                with_sky: bool = True, objects: bool = True) -> SceneRender:
         """Render ``cam`` (at its own resolution) posed at ``city_T_cam`` with actors at ``timestamp_ns``."""
         from nuav2.splat import rasterize
+        from nuav2.splat._inputs import prepare_cameras
 
         scene_T_cam = self.scene_T_city @ np.asarray(city_T_cam, np.float64)
+        # A NaN or non-rigid pose gathers no Gaussians, and the empty-view path below would return
+        # sky (judged fully covered): check it as rasterize would.
+        prepare_cameras(scene_T_cam, cam.K)
         g, slices, index = gather_visible(self, timestamp_ns, cam, scene_T_cam, objects)
         deg = self.sh_degree if sh_degree is None else min(sh_degree, self.sh_degree)
         dev = self.device
