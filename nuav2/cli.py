@@ -149,6 +149,29 @@ def _leaf_parser(args: argparse.Namespace) -> argparse.ArgumentParser:
     return leaf
 
 
+def _stopped() -> int:
+    """Say how the run was stopped (Ctrl-C or SIGTERM) and return the shell's code for it."""
+    if _TERMINATED:  # set by the SIGTERM handler, whatever KeyboardInterrupt reached us
+        print("terminated", file=sys.stderr)
+        return 128 + signal.SIGTERM
+    print("interrupted", file=sys.stderr)
+    return 130
+
+
+def _raised_by_interrupt(e: BaseException) -> bool:
+    """An error raised while a Ctrl-C unwound: numba's dispatcher, for one, turns a KeyboardInterrupt
+    caught in compiled code into "SystemError: CPUDispatcher(...) returned a result with an
+    exception set", which would read as an internal error."""
+    seen: set[int] = set()
+    cause: BaseException | None = e
+    while cause is not None and id(cause) not in seen:
+        if isinstance(cause, KeyboardInterrupt):
+            return True
+        seen.add(id(cause))
+        cause = cause.__cause__ or cause.__context__
+    return False
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args, unknown = parser.parse_known_args(argv)
@@ -165,16 +188,14 @@ def main(argv: list[str] | None = None) -> int:
         sys.stdout.flush()  # a closed pipe shows here, not as "Exception ignored" at exit
         return code
     except KeyboardInterrupt:
-        if _TERMINATED:  # set by the SIGTERM handler, whatever KeyboardInterrupt reached us
-            print("terminated", file=sys.stderr)
-            return 128 + signal.SIGTERM
-        print("interrupted", file=sys.stderr)
-        return 130
+        return _stopped()
     except BrokenPipeError:  # stdout closed early (`nuav2 ... | head`): stop quietly, as Unix tools do
         with contextlib.suppress(OSError):
             os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 128 + signal.SIGPIPE
     except Exception as e:  # noqa: BLE001 - the one place errors become a message and an exit code
+        if _raised_by_interrupt(e):
+            return _stopped()
         if args.verbose:
             traceback.print_exc()
         print(f"nuav2 {args.command}: {describe_error(e)}", file=sys.stderr)

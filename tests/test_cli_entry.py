@@ -61,3 +61,31 @@ def test_the_entry_point_runs_outside_the_main_thread(monkeypatch, capsys):
     worker.start()
     worker.join(60)
     assert codes == [2] and "dataroot not found" in capsys.readouterr().err
+
+
+def test_an_error_raised_while_a_ctrl_c_unwinds_reads_as_interrupted(monkeypatch, capsys, tmp_path: Path):
+    """numba's dispatcher turns a KeyboardInterrupt inside compiled code into a SystemError ("returned
+    a result with an exception set"), seen once at a Ctrl-C of ``bench raster``: it printed
+    "internal error" and exit 2."""
+    import nuav2.commands.validate as validate_cmd
+    from nuav2.cli import main
+
+    def interrupted_in_compiled_code(args):
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt:
+            raise SystemError("CPUDispatcher(bin_rows) returned a result with an exception set") from None
+
+    monkeypatch.setattr(validate_cmd, "run", interrupted_in_compiled_code)
+    assert main(["validate", str(tmp_path)]) == 130
+    assert capsys.readouterr().err.strip().splitlines() == ["interrupted"]
+
+    def unrelated(args):
+        try:
+            raise ValueError("first")
+        except ValueError:
+            raise SystemError("second") from None
+
+    monkeypatch.setattr(validate_cmd, "run", unrelated)
+    assert main(["validate", str(tmp_path)]) == 2
+    assert "internal error: SystemError: second" in capsys.readouterr().err
