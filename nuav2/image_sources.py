@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from nuav2.atomic import atomic_write_json
+from nuav2.conversion_modes import MODES
 from nuav2.geometry import F64
 from nuav2.nuscenes_db.images import (
     CameraShot,
@@ -34,7 +35,6 @@ from nuav2.nuscenes_db.writer import output_rig_native
 from nuav2.rig import CameraSpec, Rig, load_rig
 from nuav2.scene import SceneLog
 
-MODES = ("native", "warp", "render", "truth")
 QUALITY_FILE = "nuav2_image_quality.json"
 
 

@@ -10,7 +10,7 @@ from pathlib import Path
 
 from nuav2.cli import group
 from nuav2.cli_types import number, path
-from nuav2.image_sources import MODES
+from nuav2.conversion_modes import MODES
 
 log = logging.getLogger(__name__)
 # Versions whose devkit split names (create_splits_scenes: train/val/test, mini_*) are nuScenes'

@@ -15,11 +15,28 @@ Realism presets (``PRESETS``) and their factors (``FACTORS``) are described in c
 docs/realism.md; ``LAYOUTS`` are the road layouts ``SynthConfig.layout`` can pick.
 """
 
+import importlib
+
 from nuav2.synth.config import FACTORS, LAYOUTS, PRESETS, SynthConfig
-from nuav2.synth.log_writer import generate_log
-from nuav2.synth.raycast import LidarReturns, cast_sweep
-from nuav2.synth.render import REGION_LABELS, render_view
-from nuav2.synth.world import ActorPoses, SyntheticWorld, build_world, load_world
+
+# The rest loads on first use (PEP 562): the CLI's parser needs only the names above, and the
+# world, ray caster and renderer pull in numba and the map code (about 0.3 s).
+_LAZY = {
+    "generate_log": "nuav2.synth.log_writer",
+    "LidarReturns": "nuav2.synth.raycast", "cast_sweep": "nuav2.synth.raycast",
+    "REGION_LABELS": "nuav2.synth.render", "render_view": "nuav2.synth.render",
+    "ActorPoses": "nuav2.synth.world", "SyntheticWorld": "nuav2.synth.world",
+    "build_world": "nuav2.synth.world", "load_world": "nuav2.synth.world",
+}
+
+
+def __getattr__(name: str):
+    if name not in _LAZY:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(_LAZY[name]), name)
+    globals()[name] = value
+    return value
+
 
 __all__ = ["ActorPoses", "FACTORS", "LAYOUTS", "LidarReturns", "PRESETS", "SynthConfig", "SyntheticWorld",
            "build_world", "cast_sweep", "generate_log", "load_world", "render_view", "REGION_LABELS"]
