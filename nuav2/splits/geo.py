@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
+import copy
 import logging
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -104,9 +105,23 @@ class _State:
     sizes: np.ndarray
     target: dict[str, float]
     members: dict[str, set[int]] = field(default_factory=lambda: {s: set() for s in (*SPLITS, DISCARDED)})
+    # samples per split, kept with ``members`` (summing the members at every cost made the split
+    # quadratic in the number of scenes)
+    totals: dict[str, int] = field(default_factory=lambda: dict.fromkeys((*SPLITS, DISCARDED), 0))
+
+    def move(self, scenes: Iterable[int], to: str, source: str | None = None) -> None:
+        """Put ``scenes`` into split ``to``, taking them out of ``source`` first if given."""
+        scenes = set(scenes)
+        if source is not None:
+            taken = scenes & self.members[source]
+            self.members[source] -= taken
+            self.totals[source] -= int(self.sizes[list(taken)].sum())
+        new = scenes - self.members[to]
+        self.members[to] |= new
+        self.totals[to] += int(self.sizes[list(new)].sum())
 
     def count(self, split: str) -> int:
-        return int(sum(self.sizes[i] for i in self.members[split]))
+        return self.totals[split]
 
     def deficit(self, split: str) -> float:
         return self.target[split] - self.count(split)
@@ -164,22 +179,20 @@ ASSIGN_RULES = ("fit", "fit_else_cost", "cost")
 
 def _assign_and_carve(
     rule: str,
+    comps: list[list[int]],
     target: dict[str, float],
     sizes: np.ndarray,
     adj: list[set[int]],
     positions: Positions,
     scenes: Sequence[str],
-    seed: int,
+    rng: np.random.Generator,
 ) -> _State:
     """One candidate split. Whole components, largest first, go: ``fit``: to the split furthest
     below its ratio that they fit (its shortfall plus 10 % of its target), else to train;
     ``fit_else_cost``: the same, else where the cost is least; ``cost``: where the cost is least.
-    Then val/test regions are carved out of train while a carve lowers the cost."""
+    Then val/test regions are carved out of train while a carve lowers the cost (``rng`` picks
+    where each carve starts)."""
     state = _State(sizes, target)
-    rng = np.random.default_rng(seed)
-    comps = _components(adj)
-    comps = [comps[i] for i in rng.permutation(len(comps))]  # seed decides among equal sizes
-    comps.sort(key=lambda c: -int(sizes[c].sum()))
     slack = {s: 0.1 * target[s] for s in SPLITS}
     open_splits = [s for s in SPLITS if target[s] > 0]
     for comp in comps:
@@ -192,7 +205,7 @@ def _assign_and_carve(
                 dest = "train"
         if dest is None:
             dest = min(open_splits, key=lambda s: state.cost({s: size}))
-        state.members[dest].update(comp)
+        state.move(comp, dest)
     for split in HOLDOUT:  # carve what whole components could not give, while that is worth its ring
         while state.deficit(split) > slack[split]:
             train_comps = [c for c in _components_within(state.members["train"], adj) if len(c) > 1]
@@ -204,9 +217,8 @@ def _assign_and_carve(
             got, lost = int(sizes[region].sum()), int(sizes[list(ring)].sum())
             if state.cost({split: got, "train": -got - lost, DISCARDED: lost}) >= state.cost():
                 break  # the carve (and the train scenes it discards) would leave the split worse
-            state.members["train"] -= set(region) | ring
-            state.members[split].update(region)
-            state.members[DISCARDED].update(ring)
+            state.move(region, split, source="train")
+            state.move(ring, DISCARDED, source="train")
     return state
 
 
@@ -237,8 +249,12 @@ def geo_split(
     adj = scene_adjacency(scene_positions, city_of, min_distance_m, scenes)
     # No single greedy rule is best: "fit" meets the ratios where small components can fill the
     # holdouts, "cost" where a component fits no share. Each runs in full; the closest result wins.
-    runs = [_assign_and_carve(rule, target, sizes, adj, scene_positions, scenes, seed)
-            for rule in ASSIGN_RULES]
+    rng = np.random.default_rng(seed)
+    comps = _components(adj)
+    comps = [comps[i] for i in rng.permutation(len(comps))]  # seed decides among equal sizes
+    comps.sort(key=lambda c: -int(sizes[c].sum()))
+    runs = [_assign_and_carve(rule, comps, target, sizes, adj, scene_positions, scenes, copy.deepcopy(rng))
+            for rule in ASSIGN_RULES]  # each carves with the generator as the permutation left it
     state = min(runs, key=lambda st: st.cost())  # first of equals: "fit"
     out = {k: sorted(scenes[i] for i in v) for k, v in state.members.items()}
     _assert_disjoint(out, scene_positions, city_of, min_distance_m)
