@@ -119,14 +119,14 @@ def annotation_rows(world: SyntheticWorld, timestamp_ns: int, box_hits: np.ndarr
     ego_T_box = ego_T_city[None] @ poses.city_T_box
     owner = world.boxes_at(timestamp_ns).owner[box_hits[box_hits >= 0]]
     k = len(poses.track_uuid)
-    counts = np.bincount(owner[owner >= 0], minlength=k)[:k].astype(np.int64)
     size = poses.size_lwh
     keep = np.arange(k)
-    if world.config.label_noise:
+    if world.config.label_noise:  # an actor's ray hits decide whether the annotator missed it
+        hits = np.bincount(owner[owner >= 0], minlength=k)[:k].astype(np.int64)
         ego_T_box, size, kept = label_errors(world.seed, poses.track_uuid, timestamp_ns, ego_T_box, size,
-                                             counts)
+                                             hits)
         keep = np.flatnonzero(kept)
-    counts = interior_counts(xyz_written, ego_T_box, size)  # in the boxes as labelled
+    counts = interior_counts(xyz_written, ego_T_box[keep], size[keep])  # in the boxes as labelled
     q, t = T_to_quat_trans(ego_T_box[keep])
     n = len(keep)
     return {"timestamp_ns": [int(timestamp_ns)] * n, "track_uuid": [poses.track_uuid[i] for i in keep],
@@ -134,7 +134,7 @@ def annotation_rows(world: SyntheticWorld, timestamp_ns: int, box_hits: np.ndarr
             "length_m": size[keep, 0].tolist(), "width_m": size[keep, 1].tolist(),
             "height_m": size[keep, 2].tolist(),
             **{c: v.tolist() for c, v in zip(_POSE_COLS, np.column_stack([q, t]).T)},
-            "num_interior_pts": counts[keep].tolist()}
+            "num_interior_pts": counts.tolist()}
 
 
 def annotations_table(rows: list[dict[str, list]]) -> pa.Table:
