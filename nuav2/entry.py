@@ -1,7 +1,8 @@
-"""The ``nuav2`` command's entry point. A Ctrl-C while the CLI loads its libraries (about a
-second) is held until they are loaded, then ends the run with "interrupted" and exit 130, as one
+"""The ``nuav2`` command's entry point. A Ctrl-C while the CLI builds its parser (its imports:
+about 0.3 s) is held until it is built, then ends the run with "interrupted" and exit 130, as one
 during the work does: raised inside a library's import it showed a traceback, or numpy's
-"Importing the numpy C-extensions failed" (exit 1)."""
+"Importing the numpy C-extensions failed" (exit 1). Libraries a command loads when it runs are
+inside ``cli.main``'s own handling."""
 
 from __future__ import annotations
 
@@ -22,7 +23,7 @@ def _load_cli_held() -> bool:
     try:
         from nuav2 import cli
 
-        cli.build_parser()  # the commands' register() import more (av2, cv2, pyarrow, pyproj)
+        cli.build_parser()  # the commands' register() import more (numpy, av2, pyproj)
     finally:
         if hold:
             signal.signal(signal.SIGINT, signal.default_int_handler)
