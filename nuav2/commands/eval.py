@@ -15,6 +15,10 @@ log = logging.getLogger(__name__)
 # (nuav2.maptr.subsets.release_splits: a v1.0-mini database skips trainval's val, as the devkit does).
 DEFAULT_SPLITS = ("geo_val", "av2_val", "val", "mini_val", "all")
 MINI_DEFAULT_SPLITS = ("geo_val", "av2_val", "mini_val", "val", "all")
+DEFAULT_PATCH_M = (60.0, 30.0)  # MapTR's GT patch: forward, right
+# Flags that choose the map GT; a GT file fixes its samples and vectors itself.
+MAP_GT_FLAGS = (("dataroot", "--dataroot"), ("version", "--version"), ("split", "--split"),
+                ("patch", "--patch"))
 # Points per line for the chamfer distance: MapTR uses 100; beyond 1000 only the run time grows.
 N_RESAMPLE_RANGE = (2, 1000)
 
@@ -77,19 +81,27 @@ def resolve_split(dataroot: str, version: str, split: str | None) -> str:
 ALWAYS_SCORED = ("divider", "ped_crossing", "boundary")
 
 
-def choose_classes(preds: dict, classes: list[str] | None, pred_path: str) -> tuple[list[str], list[str]]:
+def choose_classes(
+    preds: dict, classes: list[str] | None, pred_path: str, gt_classes: frozenset[str] = frozenset()
+) -> tuple[list[str], list[str]]:
     """(classes to evaluate, classes left out): ``--classes`` if given, else MapTR's three classes, each
     scored AP 0 when the file never predicts it (MapTR averages its configured classes, so a model that
     lost a class must not score higher than MapTR would score it), plus ``centerline`` when the file
-    predicts it (a 3-class MapTRv2 result file is scored on its three classes, as MapTR does)."""
+    predicts it (a 3-class MapTRv2 result file is scored on its three classes, as MapTR does).
+    ``gt_classes``: the classes a GT file holds, so a class of its own is not called one without GT."""
     from nuav2.evaluate import MAP_CLASSES
     from nuav2.evaluate.chamfer_ap import predicted_classes
 
     if classes:
         return list(classes), []
     found, missing, unknown = predicted_classes(preds, MAP_CLASSES)
-    if unknown:
-        log.warning("%s: predicted class(es) %s have no GT class and are ignored", pred_path, unknown)
+    own = [c for c in unknown if c in gt_classes]
+    if own:
+        log.warning("%s: class(es) %s are not MapTR classes: left out of the default mAP (--classes "
+                    "scores them)", pred_path, own)
+    if len(own) < len(unknown):
+        log.warning("%s: predicted class(es) %s have no GT class and are ignored", pred_path,
+                    [c for c in unknown if c not in own])
     zero = [c for c in missing if c in ALWAYS_SCORED]
     if zero:
         log.warning("%s: no prediction of class(es) %s: scored AP 0, as MapTR does", pred_path, zero)
@@ -130,7 +142,8 @@ def map_gt(args: argparse.Namespace) -> tuple[dict, str]:
 
     split = resolve_split(args.dataroot, args.version, args.split)
     with diagnosed_tables(args.dataroot, args.version):
-        gts = gt_vectors_for_split(args.dataroot, args.version, split, patch=tuple(args.patch))
+        gts = gt_vectors_for_split(args.dataroot, args.version, split,
+                                   patch=tuple(args.patch or DEFAULT_PATCH_M))
     return gts, f"{args.dataroot} {args.version} split {split} (from the map)"
 
 
@@ -143,6 +156,10 @@ def _run(args: argparse.Namespace) -> int:
     from nuav2.evaluate.vector_files import load_gt_file, load_predictions
 
     require_out_path(args.out)
+    ignored = [flag for key, flag in MAP_GT_FLAGS if getattr(args, key) is not None]
+    if args.gt_json and ignored:
+        raise UsageError(f"--gt-json: {', '.join(ignored)} only apply to the map GT, not to a GT file; "
+                         "leave them out")
     if not args.gt_json:
         if not args.dataroot:
             raise UsageError("--dataroot is required (or give --gt-json)")
@@ -155,7 +172,8 @@ def _run(args: argparse.Namespace) -> int:
         check_classes(args.classes, gt_file_classes(gts, preds), f"{source} and {args.pred}")
     else:
         gts, source = map_gt(args)
-    classes, left_out = choose_classes(preds, args.classes, args.pred)
+    gt_classes = frozenset(vec[0] for vectors in gts.values() for vec in vectors if args.gt_json)
+    classes, left_out = choose_classes(preds, args.classes, args.pred, gt_classes)
     try:
         result = evaluate_vectors(
             gts, preds, classes=classes, thresholds=args.thresholds, n_resample=args.n_resample
@@ -196,7 +214,7 @@ def register(subparsers) -> None:
         "--patch",
         type=positive_float,
         nargs=2,
-        default=(60.0, 30.0),
+        default=None,
         metavar=("FORWARD_M", "RIGHT_M"),
         help="GT patch size in the LIDAR_TOP frame (default 60 30)",
     )
