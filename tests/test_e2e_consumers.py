@@ -241,6 +241,34 @@ def test_prediction_rasterizer_draws_the_agents_map(db: Path, nusc):
     assert len(static.maps.names) == len(nusc.log) and set(static.maps) <= set(static.maps.names)
 
 
+def test_prediction_off_road_rate_reads_the_drivable_area(db: Path, nusc):
+    """The devkit's OffRoadRate renders every location's drivable mask when built, from load_all_maps's
+    items(): the lazy nuAV2 mapping listed none, and every prediction raised KeyError on its location.
+    Now a mask is made when a prediction first needs it: a car's own track scores 0, 1 km off scores 1."""
+    from nuscenes.eval.prediction.data_classes import Prediction
+    from nuscenes.eval.prediction.metrics import OffRoadRate, RowMean
+    from nuscenes.prediction import PredictHelper
+
+    helper = PredictHelper(nusc)
+    metric = OffRoadRate(helper, [RowMean()])
+    masks = metric.drivable_area_polygons
+    assert dict.__len__(masks) == 0 and sorted(masks) == sorted({log["location"] for log in nusc.log})
+    scored = 0
+    for ann in nusc.sample_annotation:
+        if not ann["category_name"].startswith("vehicle.car") or not ann["prev"] or not ann["next"]:
+            continue
+        track = helper.get_past_for_agent(ann["instance_token"], ann["sample_token"], 1.0, False)
+        if len(track) < 2 or ann["num_lidar_pts"] < 20:
+            continue
+        modes = np.stack([track, track + 1000.0])
+        prediction = Prediction(ann["instance_token"], ann["sample_token"], modes, np.array([0.5, 0.5]))
+        assert metric(None, prediction)[0] == pytest.approx(0.5)  # on the road; the copy is off the map
+        scored += 1
+    if not scored:
+        pytest.skip("no car with a second of history (the real fixture ships one sweep)")
+    assert dict.__len__(masks) >= 1
+
+
 def test_prediction_helper_past_and_future_cover_the_seconds_asked(db: Path, nusc):
     """The devkit caps a past / future at 2 annotations a second (nuScenes' keyframe rate); nuAV2 keys
     every 10 Hz sweep by default, where ``seconds=0.3`` returned nothing (int(2 x 0.3) = 0) and

@@ -26,14 +26,16 @@ The registration patches, in memory only (the devkit on disk is untouched):
 5. The prediction rasterizer's ``static_layers.load_all_maps`` loads the four nuScenes maps by
    name; on a dataroot whose ``log`` table names nuAV2 locations it returns a mapping that opens
    a location's map when the rasterizer first asks for it (a few most recent kept open: a full
-   conversion has one location per log).
+   conversion has one location per log); iterating it opens each in turn. The prediction metric
+   ``OffRoadRate``, which renders every location's drivable mask when it is built, makes a nuAV2
+   location's mask when a prediction first needs it.
 6. ``PredictHelper``'s past / future stops at 2 annotations a second, nuScenes' keyframe rate; in a
    nuAV2 scene keyed faster (every 10 Hz sweep by default) the cap follows the scene's sample rate.
 
 Importing the devkit costs seconds, so nothing is imported eagerly: a post-import hook applies
 each patch when its module (``nuscenes.map_expansion.map_api``, ``bitmap``, ``descartes.patch``,
-``nuscenes.prediction.helper``, ...) is first imported, or at once if it already is. Installing
-twice is harmless.
+``nuscenes.prediction.helper``, ``nuscenes.eval.prediction.metrics``, ...) is first imported, or at
+once if it already is. Installing twice is harmless.
 """
 
 import collections
@@ -109,11 +111,12 @@ def _patch_map_api(map_api):
 
 
 class LazyMaps(dict):
-    """{location: NuScenesMap} that opens a map on first use and keeps the ``keep`` latest open."""
+    """{location: value} that makes a location's value (its NuScenesMap, its drivable mask) on first
+    use and keeps the ``keep`` latest; iterating it walks every location, making each in turn."""
 
-    def __init__(self, dataroot, names, open_map, keep=8):
+    def __init__(self, names, make, keep=8):
         super().__init__()
-        self.dataroot, self.names, self._open, self.keep = dataroot, names, open_map, keep
+        self.names, self._make, self.keep = list(names), make, keep
         self._order = collections.deque()
 
     def __missing__(self, name):
@@ -121,13 +124,31 @@ class LazyMaps(dict):
             raise KeyError(name)
         while len(self._order) >= self.keep:
             dict.pop(self, self._order.popleft(), None)
-        nmap = self._open(self.dataroot, map_name=name)
-        self[name] = nmap
+        value = self._make(name)
+        self[name] = value
         self._order.append(name)
-        return nmap
+        return value
 
     def __contains__(self, name):
         return name in self.names
+
+    def __iter__(self):
+        return iter(self.names)
+
+    def __len__(self):
+        return len(self.names)
+
+    def keys(self):
+        return list(self.names)
+
+    def values(self):
+        return (self[name] for name in self.names)
+
+    def items(self):
+        return ((name, self[name]) for name in self.names)
+
+    def get(self, name, default=None):
+        return self[name] if name in self.names else default
 
 
 def _patch_static_layers(static_layers):
@@ -139,10 +160,35 @@ def _patch_static_layers(static_layers):
         names = sorted(set(log["location"] for log in helper.data.log))
         if not any(is_av2_location(n) for n in names):
             return devkit_load_all_maps(helper, verbose)
-        return LazyMaps(helper.data.dataroot, names, static_layers.NuScenesMap)
+        dataroot = helper.data.dataroot
+        return LazyMaps(names, lambda name: static_layers.NuScenesMap(dataroot, map_name=name))
 
     setattr(load_all_maps, _PATCHED, True)
     static_layers.load_all_maps = load_all_maps
+
+
+def _patch_prediction_metrics(metrics):
+    """OffRoadRate renders every location's whole drivable mask (10 px/m) when it is built: 4 masks
+    for nuScenes, one per log for nuAV2; for nuAV2 each mask is made when a prediction first asks."""
+    cls = metrics.OffRoadRate
+    devkit_load = cls.load_drivable_area_masks
+    if getattr(devkit_load, _PATCHED, False):
+        return
+
+    def load_drivable_area_masks(helper):
+        # the module's own load_all_maps, patched (metrics holds the devkit's if it was imported first)
+        maps = sys.modules["nuscenes.prediction.input_representation.static_layers"].load_all_maps(helper)
+        if not isinstance(maps, LazyMaps):
+            return devkit_load(helper)
+
+        def drivable_mask(name):
+            return maps[name].get_map_mask(patch_box=None, patch_angle=0, layer_names=["drivable_area"],
+                                           canvas_size=None)[0]
+
+        return LazyMaps(maps.names, drivable_mask, keep=maps.keep)
+
+    setattr(load_drivable_area_masks, _PATCHED, True)
+    cls.load_drivable_area_masks = staticmethod(load_drivable_area_masks)
 
 
 def _patch_bitmap(bitmap):
@@ -257,6 +303,7 @@ PATCHERS = {
     "descartes.patch": _patch_descartes,
     "nuscenes.prediction.input_representation.static_layers": _patch_static_layers,
     "nuscenes.prediction.helper": _patch_prediction_helper,
+    "nuscenes.eval.prediction.metrics": _patch_prediction_metrics,
 }
 
 
