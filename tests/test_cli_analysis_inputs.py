@@ -337,3 +337,32 @@ def test_validate_into_a_closed_pipe_exits_quietly(native_synth_db):
         os.close(write_end)
     err = proc.stderr.decode()
     assert proc.returncode == 141 and "Broken pipe" not in err and "BrokenPipe" not in err, err
+
+
+def test_split_straddle_without_regions_is_refused(native_synth_db, tmp_path):
+    """Found by review: --straddle (a region-mode rule) was ignored without --regions."""
+    db = copy_db(native_synth_db, tmp_path / "db")
+    before = _tables(db)
+    assert _refused("split", db, "--version", VERSION, "--straddle", "drop") == \
+        "nuav2 split: --straddle applies to --regions only"
+    assert _tables(db) == before
+
+
+@pytest.mark.parametrize("damage", ["garbled", "no_offset"])
+def test_validate_reports_a_log_placement_split_cannot_read(native_synth_db, tmp_path, damage):
+    """Found by review: with nuav2_logs.json replaced by 'x', validate passed while split refused the
+    database ("cannot read the per-log city placement")."""
+    db = copy_db(native_synth_db, tmp_path / "db")
+    logs_file = db / VERSION / "nuav2_logs.json"
+    if damage == "garbled":
+        logs_file.write_text("x")
+    else:
+        records = json.loads(logs_file.read_text())
+        del records[0]["city_offset"]
+        logs_file.write_text(json.dumps(records))
+    code, out, _ = cli("validate", db, "--version", VERSION, "--no-files")
+    placement = [ln for ln in out.splitlines() if "placement" in ln]
+    assert code == 1 and len(placement) == 1 and str(logs_file) in placement[0], out
+    why = "cannot read the per-log city placement" if damage == "garbled" else "'city_offset'"
+    assert why in placement[0]
+    assert str(logs_file) in _refused("split", db, "--version", VERSION)

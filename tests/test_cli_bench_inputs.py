@@ -60,8 +60,8 @@ def _synth_accepts(**fields) -> bool:
 # 1. --seconds / --scale / --lidar-azimuth-steps name the flag, not SynthConfig's field.
 
 @pytest.mark.parametrize("flag, value", [
-    ("--scale", "0"), ("--scale", "inf"), ("--seconds", "0"), ("--seconds", "0.05"), ("--seconds", "nan"),
-    ("--lidar-azimuth-steps", "7"), ("--seed", "-1"),
+    ("--scale", "0"), ("--scale", "inf"), ("--scale", "1e9"), ("--seconds", "0"), ("--seconds", "0.05"),
+    ("--seconds", "nan"), ("--lidar-azimuth-steps", "7"), ("--seed", "-1"),
 ])
 def test_synth_refuses_bad_values_naming_the_flag(tmp_path, capsys, flag, value):
     out = tmp_path / "o"
@@ -93,7 +93,7 @@ def test_seconds_bound_is_synthconfigs(seconds):
     assert _accepts(synth_seconds, seconds) == _synth_accepts(seconds=float(seconds))
 
 
-@pytest.mark.parametrize("scale", ["-0.1", "0", "1e-3", "1"])
+@pytest.mark.parametrize("scale", ["-0.1", "0", "1e-3", "1", "8", "8.01", "1e9"])
 def test_image_scale_bound_is_synthconfigs(scale):
     assert _accepts(synth_image_scale, scale) == _synth_accepts(image_scale=float(scale))
 
@@ -206,11 +206,16 @@ def test_demo_bad_rig_leaves_nothing_behind(tmp_path, capsys):
     assert not out.exists()
 
 
-def test_demo_bad_rig_in_native_mode_is_refused_too(tmp_path, capsys):
+@pytest.mark.parametrize("flag, value, modes", [("--rig", "nope", "warp and render and truth"),
+                                                ("--rig", "nuscenes", "warp and render and truth"),
+                                                ("--scale", "0.1", "warp and render and truth"),
+                                                ("--recon-preset", "default", "render")])
+def test_demo_flags_native_mode_does_not_use_are_refused(tmp_path, capsys, flag, value, modes):
+    """Found by review: demo --mode native --rig truck5 ran, and recorded "rig": null."""
     out = tmp_path / "odemo"
-    err = _refused_before_work(["demo", "--out", str(out), "--rig", "nope", "--mode", "native",
+    err = _refused_before_work(["demo", "--out", str(out), flag, value, "--mode", "native",
                                 "--seconds", "0.3", "--no-progress"], capsys)
-    assert "--rig: unknown rig 'nope'" in err and not out.exists()
+    assert err == f"nuav2 demo: {flag} applies to --mode {modes} only, not --mode native" and not out.exists()
 
 
 @pytest.mark.parametrize("flag, value", [("--scale", "inf"), ("--scale", "0"), ("--recon-preset", "nope"),

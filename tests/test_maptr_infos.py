@@ -144,3 +144,47 @@ def test_database_without_cameras_warns_once_naming_it(camera_less_db: Path, tmp
     warnings = [r.getMessage() for r in caplog.records if "no camera" in r.getMessage()]
     assert len(warnings) == 1 and f"{camera_less_db}/{VERSION}" in warnings[0]
     assert f"{len(infos)} of {len(infos)} keyframes" in warnings[0]
+
+
+@pytest.mark.parametrize("table, field", [("ego_pose", "translation"), ("calibrated_sensor", "translation"),
+                                          ("calibrated_sensor", "camera_intrinsic")])
+def test_infos_refuse_a_camera_record_with_nan(curved_db: Path, tmp_path: Path, table: str, field: str):
+    """Found by review: a NaN in a keyframe camera's ego pose or calibration went into the .pkl (its
+    sensor2lidar and lidar2img with it) and infos exited 0; only the LIDAR_TOP pose was checked."""
+    db = tmp_path / "db"
+    shutil.copytree(curved_db, db, symlinks=True)
+    sample_data = json.loads((db / VERSION / "sample_data.json").read_text())
+    cam = next(r for r in sample_data if r["is_key_frame"] and "/ring_front_center/" in r["filename"])
+    key = {"ego_pose": "ego_pose_token", "calibrated_sensor": "calibrated_sensor_token"}[table]
+    rows = json.loads((db / VERSION / f"{table}.json").read_text())
+    row = next(r for r in rows if r["token"] == cam[key])
+    if field == "camera_intrinsic":
+        row[field][0][0] = float("nan")
+    else:
+        row[field][1] = float("nan")
+    (db / VERSION / f"{table}.json").write_text(json.dumps(rows))  # json writes NaN, as a broken tool would
+    msg = _refused("infos", db, "--version", VERSION, "--out", tmp_path / "out", "--no-progress")
+    assert f"{table}.json: record {row['token']}" in msg and field in msg and "NaN or Inf" in msg, msg
+    assert not (tmp_path / "out").exists() or not list((tmp_path / "out").glob("*.pkl"))
+
+
+@pytest.mark.parametrize("flags, message", [
+    (["--prefix", "../escaped"], "--prefix '../escaped': must be a file-name part"),
+    (["--prefix", "a/b"], "--prefix 'a/b': must be a file-name part"),
+    (["--prefix", ".."], "--prefix '..': must be a file-name part"),
+    (["--ray-address", "auto"], "--ray-address applies to --executor ray only"),
+])
+def test_infos_flags_that_would_write_elsewhere_or_be_ignored(curved_db: Path, tmp_path: Path, flags,
+                                                              message):
+    """Found by review: --prefix ../escaped wrote every .pkl beside --out; --ray-address was ignored
+    with the local executor (convert refuses it)."""
+    out = tmp_path / "sub" / "out"
+    assert message in _refused("infos", curved_db, "--version", VERSION, "--out", out, *flags)
+    assert not (tmp_path / "sub").exists()
+
+
+def test_infos_out_that_is_a_file_is_named_as_such(curved_db: Path, tmp_path: Path):
+    out = tmp_path / "afile"
+    out.write_text("x")
+    assert _refused("infos", curved_db, "--version", VERSION, "--out", out) == f"nuav2 infos: --out {out}: " \
+                                                                                "is not a folder"

@@ -15,7 +15,7 @@ from nuav2.cli_types import non_negative_int, number, positive_float
 # SynthConfig's checks as argparse types: seconds must give at least one 10 Hz sweep (round(10 s) >= 1,
 # so strictly more than 0.05 s), cameras a resolution factor > 0, lidar at least 8 rays per beam.
 synth_seconds = number(float, lo=0.05, lo_open=True, hi=3600.0)  # an hour: real AV2 logs run 15-30 s
-synth_image_scale = positive_float
+synth_image_scale = number(float, lo=0.0, lo_open=True, hi=8.0)  # = nuav2.synth.config.MAX_IMAGE_SCALE
 lidar_azimuth_steps = number(int, lo=8)
 
 

@@ -26,13 +26,20 @@ _MODE_FLAGS = {"rig": ("--rig", _TARGET_RIG_MODES), "scale": ("--scale", _TARGET
                "image_link": ("--image-link", ("native",))}
 
 
-def _options(args: argparse.Namespace):  # -> nuav2.convert.ConvertOptions (imported lazily)
+def refuse_other_mode_flags(args: argparse.Namespace) -> None:
+    """A flag that ``args.mode`` does not use (``--rig`` with native, ...) is a UsageError, not ignored;
+    ``convert`` and ``demo`` share it (a flag the command lacks counts as not given)."""
     from nuav2.cli import UsageError
-    from nuav2.convert import ConvertOptions
 
     for name, (flag, modes) in _MODE_FLAGS.items():
-        if getattr(args, name) is not None and args.mode not in modes:
+        if getattr(args, name, None) is not None and args.mode not in modes:
             raise UsageError(f"{flag} applies to --mode {' and '.join(modes)} only, not --mode {args.mode}")
+
+
+def _options(args: argparse.Namespace):  # -> nuav2.convert.ConvertOptions (imported lazily)
+    from nuav2.convert import ConvertOptions
+
+    refuse_other_mode_flags(args)
     given = {name: getattr(args, name) for name in _MODE_FLAGS if getattr(args, name) is not None}
     return ConvertOptions(mode=args.mode, version=args.version, keyframe_hz=args.keyframe_hz,
                           workers=args.workers,

@@ -10,13 +10,16 @@ from nuav2.cli_types import path
 
 def _run(args: argparse.Namespace) -> int:
     from nuav2.bench.cli_args import parse_presets
+    from nuav2.commands.convert import refuse_other_mode_flags
     from nuav2.demo import DemoOptions, format_summary, run_demo
 
     presets = tuple(parse_presets(args.preset))  # a bad value: one line from nuav2.cli
+    refuse_other_mode_flags(args)  # --rig with --mode native, ...: refused as convert refuses it
+    given = {name: getattr(args, name) for name in ("rig", "scale", "recon_preset")
+             if getattr(args, name) is not None}
     # run_demo checks --rig (and the rest) before it synthesises anything
-    summary = run_demo(DemoOptions(out=args.out, seed=args.seed, mode=args.mode, rig=args.rig,
-                                   scale=args.scale, recon_preset=args.recon_preset, presets=presets,
-                                   seconds=args.seconds, progress=not args.no_progress))
+    summary = run_demo(DemoOptions(out=args.out, seed=args.seed, mode=args.mode, presets=presets,
+                                   seconds=args.seconds, progress=not args.no_progress, **given))
     print(format_summary(summary))
     return 0
 
@@ -42,11 +45,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="synthetic realism preset(s): easy,medium,hard or all (default: %(default)s)")
     p.add_argument("--mode", choices=["render", "warp", "native"], default="render",
                    help="render: Gaussian splatting (default); warp: fast depth warp; native: AV2 cameras")
-    p.add_argument("--rig", default="nuscenes", help="target rig name or JSON path (default: %(default)s)")
-    p.add_argument("--scale", type=positive_float, default=0.25,
-                   help="target resolution factor, > 0 (default: %(default)s)")
-    p.add_argument("--recon-preset", choices=["default", "fast"], default="fast",
-                   help="render mode's reconstruction budget (default: %(default)s)")
+    # defaults None, so that one given with --mode native is refused; DemoOptions holds the real ones
+    p.add_argument("--rig", default=None,
+                   help="warp / render: target rig name or JSON path (default: nuscenes)")
+    p.add_argument("--scale", type=positive_float, default=None,
+                   help="warp / render: target resolution factor, > 0 (default: 0.25)")
+    p.add_argument("--recon-preset", choices=["default", "fast"], default=None,
+                   help="render mode's reconstruction budget (default: fast)")
     p.add_argument("--seconds", type=synth_seconds, default=2.0,
                    help="seconds of synthetic driving, > 0.05 (default: %(default)s)")
     p.add_argument("--no-progress", action="store_true")

@@ -80,6 +80,23 @@ def check_cameras(dataroot: Path, version: str, cameras: list[str] | None) -> No
                          f"its cameras: {', '.join(known) or 'none'}")
 
 
+def check_infos_flags(args: argparse.Namespace) -> None:
+    """--out must be a folder (or not exist yet); --prefix a plain file-name part, so every .pkl lands in
+    --out (``../x`` wrote beside it, ``a/b`` into a subfolder); --ray-address needs --executor ray."""
+    from nuav2.cli import UsageError
+
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise UsageError(f"--out {args.out}: is not a folder")
+    if out.is_symlink() and not out.exists():
+        raise UsageError(f"--out {args.out}: is a dangling symbolic link")
+    prefix = args.prefix
+    if not prefix or prefix in (".", "..") or "/" in prefix or "\\" in prefix or "\0" in prefix:
+        raise UsageError(f"--prefix {prefix!r}: must be a file-name part (no '/', not '.' or '..')")
+    if args.ray_address is not None and args.executor != "ray":
+        raise UsageError("--ray-address applies to --executor ray only")
+
+
 def run(args: argparse.Namespace) -> int:
     from nuav2.cli import UsageError, require_database
     from nuav2.cli_inputs import diagnosed_tables
@@ -88,6 +105,7 @@ def run(args: argparse.Namespace) -> int:
     from nuav2.maptr.infos import MissingCameraError, export_infos
 
     args.version = require_database(args.dataroot, args.version)
+    check_infos_flags(args)
     check_cameras(args.dataroot, args.version, args.cameras)
     try:
         with diagnosed_tables(args.dataroot, args.version):

@@ -63,6 +63,8 @@ def _run(args: argparse.Namespace) -> int:
     args.version = require_database(args.dataroot, args.version)
     if args.regions and args.lists and not args.report_only:
         raise UsageError("give at most one of --regions and --lists")
+    if args.straddle and not args.regions:
+        raise UsageError("--straddle applies to --regions only")
     if sum(args.ratios) <= 0:
         raise UsageError(f"--ratios: at least one share must be positive, got {args.ratios}")
     with diagnosed_tables(args.dataroot, args.version):

@@ -99,6 +99,16 @@ def _pose_T(record: dict) -> F64:
     return T_from_quat_trans(record["rotation"], record["translation"])
 
 
+def _require_finite(nusc, table: str, record: dict, *fields: str) -> None:
+    """Refuse a record whose numbers are NaN or Inf: they would go into the .pkl as they are (and every
+    projection of that camera or sweep with them) without an error."""
+    for field in fields:
+        values = np.asarray(record[field] if record[field] is not None else [], dtype=np.float64)
+        if not np.isfinite(values).all():
+            raise ValueError(f"{nusc.dataroot}/{nusc.version}/{table}.json: record {record['token']} has "
+                             f"NaN or Inf in '{field}'")
+
+
 def can_bus_from_pose(
     translation: Sequence[float], rotation_wxyz: Sequence[float], motion: Sequence[float] | None = None
 ) -> F64:
@@ -146,6 +156,8 @@ def _sensor_info(nusc, sd_token: str, lidar_T_global: F64, path_root: str, kind:
     sd = nusc.get("sample_data", sd_token)
     cs = nusc.get("calibrated_sensor", sd["calibrated_sensor_token"])
     ego = nusc.get("ego_pose", sd["ego_pose_token"])
+    _require_finite(nusc, "calibrated_sensor", cs, "translation", "rotation", "camera_intrinsic")
+    _require_finite(nusc, "ego_pose", ego, "translation", "rotation")
     lidar_T_sensor = lidar_T_global @ _pose_T(ego) @ _pose_T(cs)
     info = {
         "data_path": _data_path(nusc, path_root, sd["filename"]),
@@ -191,6 +203,8 @@ def sample_info(
     lidar_sd = nusc.get("sample_data", sample["data"][LIDAR_CHANNEL])
     lidar_cs = nusc.get("calibrated_sensor", lidar_sd["calibrated_sensor_token"])
     lidar_ego = nusc.get("ego_pose", lidar_sd["ego_pose_token"])
+    _require_finite(nusc, "calibrated_sensor", lidar_cs, "translation", "rotation")
+    _require_finite(nusc, "ego_pose", lidar_ego, "translation", "rotation")
     lidar_T_global = T_inverse(_pose_T(lidar_ego) @ _pose_T(lidar_cs))
     scene = nusc.get("scene", sample["scene_token"])
     info = {

@@ -75,7 +75,8 @@ class _Checker(RecordChecks, LinkChecks, FileChecks, CanBusChecks):
             ("sample list", self._check_sample_list), ("sample_data lists", self._check_sample_data_lists),
             ("annotation lists", self._check_annotation_lists), ("maps", self._check_map_table),
             ("splits", self._check_splits), ("optional tables", self._check_optional_tables),
-            ("map expansion", self._check_map_expansions), ("CAN bus", self._check_can_bus)]
+            ("map expansion", self._check_map_expansions), ("log placement", self._check_log_placement),
+            ("CAN bus", self._check_can_bus)]
         if check_files:
             steps.append(("files", lambda: self._check_files(check_images, decode_images)))
         if devkit:
@@ -92,6 +93,27 @@ class _Checker(RecordChecks, LinkChecks, FileChecks, CanBusChecks):
     def _check_map_expansions(self) -> None:
         for loc in self._locations():
             validate_map_expansion(self.dataroot / "maps" / "expansion" / f"{loc}.json", loc, self.add)
+
+    def _check_log_placement(self) -> None:
+        """In a nuAV2 conversion (``nuav2_logs.json`` present), each nuAV2 log's city and offset (there, else
+        in its expansion's ``nuav2`` block), which ``nuav2 split`` needs to place scenes in true city
+        coordinates; logs of other maps are skipped."""
+        from nuav2.nuscenes_db.map_frame import LOCATION_RE
+        from nuav2.nuscenes_db.merge import LOGS_FILE
+        from nuav2.splits.database import log_city_placement
+
+        if not (self.table_root / LOGS_FILE).is_file():
+            return
+        cache: dict = {}
+        for token, location in zip(self.tokens("log"), self.col("log", "location", _S)):
+            if not location or not LOCATION_RE.match(location):
+                continue
+            try:
+                log_city_placement(self.dataroot, self.version, {"token": token, "location": location}, cache)
+            except ValueError as e:
+                self.add("log", token, "location", str(e), "placement")
+                if "sidecar" not in cache:  # nuav2_logs.json itself is unreadable: once, not per log
+                    return
 
     def _check_devkit(self) -> None:
         """Instantiate the real devkit classes: the final word on whether the database loads."""

@@ -47,8 +47,9 @@ def _nuav2_logs(dataroot: Path, version: str) -> dict[str, dict]:
     return out
 
 
-def _nuav2_placement(dataroot: Path, version: str, log_rec: dict, cache: dict) -> tuple[str, np.ndarray]:
-    """(city, city_offset[:2]) of a converted AV2 log: ``nuav2_logs.json`` first, else the expansion JSON."""
+def log_city_placement(dataroot: Path, version: str, log_rec: dict, cache: dict) -> tuple[str, np.ndarray]:
+    """(city, city_offset[:2]) of a converted AV2 log: ``nuav2_logs.json`` first, else the expansion JSON
+    (a ValueError naming the file if neither is readable; ``cache`` is shared over a database's logs)."""
     location = log_rec["location"]
     if "sidecar" not in cache:
         cache["sidecar"] = _nuav2_logs(dataroot, version)
@@ -88,7 +89,7 @@ def read_scene_table(dataroot: str | Path, version: str) -> SceneTable:
     for scene in nusc.scene:
         log_rec = nusc.get("log", scene["log_token"])
         if LOCATION_RE.match(log_rec["location"]):
-            city, offset = _nuav2_placement(dataroot, version, log_rec, cache)
+            city, offset = log_city_placement(dataroot, version, log_rec, cache)
         else:
             city, offset = log_rec["location"], np.zeros(2)
         xy, tok = [], scene["first_sample_token"]

@@ -20,6 +20,8 @@ from dataclasses import asdict, dataclass, fields
 from av2.geometry.utm import CityName
 
 PRESETS = ("easy", "medium", "hard")
+# AV2 ring cameras are 2048 px on the long side: 8x makes 16,384 px, the converter's largest image side.
+MAX_IMAGE_SCALE = 8.0
 # One switch per realism factor, in the order the ablation adds them.
 FACTORS = ("relief", "layouts", "content", "shadows", "exposure", "lidar_noise", "label_noise")
 PRESET_FACTORS = {
@@ -77,6 +79,9 @@ class SynthConfig:
                 raise bad(name, "must be a finite number > 0")
         if round(self.seconds * 10) < 1:
             raise bad("seconds", "must give at least one 10 Hz sweep (> 0.05)")
+        if self.image_scale > MAX_IMAGE_SCALE:
+            raise bad("image_scale", f"must be <= {MAX_IMAGE_SCALE:g} (AV2's 2048 px camera side at most "
+                                     f"{2048 * MAX_IMAGE_SCALE:.0f} px)")
         for name in ("n_parked", "n_moving", "n_pedestrians", "n_cyclists"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < 0:
