@@ -124,7 +124,11 @@ def atomic_file(path: str | Path) -> Iterator:
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = None
     try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+        try:
+            fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+        except OSError as e:  # it names its random temp file; the user knows the file they asked for
+            raise OSError(e.errno, f"{e.strerror} (writing it through a temporary file in its folder)",
+                          str(path)) from None
         with os.fdopen(fd, "wb") as f:
             os.fchmod(f.fileno(), file_mode())
             yield f

@@ -236,6 +236,8 @@ def prepare_output_dir(out: Path) -> None:
     """Create OUT (or accept an existing directory) and make sure files can be written in it."""
     if out.exists() and not out.is_dir():
         raise ConvertError(f"{out}: OUT exists and is not a directory")
+    if out.is_symlink() and not out.exists():
+        raise ConvertError(f"{out}: OUT is a dangling symbolic link (to {os.readlink(out)})")
     try:
         out.mkdir(parents=True, exist_ok=True)
         with tempfile.TemporaryFile(dir=out):

@@ -366,3 +366,37 @@ def test_validate_reports_a_log_placement_split_cannot_read(native_synth_db, tmp
     why = "cannot read the per-log city placement" if damage == "garbled" else "'city_offset'"
     assert why in placement[0]
     assert str(logs_file) in _refused("split", db, "--version", VERSION)
+
+
+def test_split_into_a_read_only_database_names_splits_json(native_synth_db, tmp_path):
+    """Found by review: the message named the atomic writer's random '.splits.json.XXXX.tmp'."""
+    db = copy_db(native_synth_db, tmp_path / "db")
+    (db / VERSION).chmod(0o555)
+    try:
+        code, _, err = cli_bound_by_modes("split", db, "--version", VERSION)
+    finally:
+        (db / VERSION).chmod(0o755)
+    assert code == 2, err
+    msg = _one_line(err)
+    assert f"{db / VERSION / 'splits.json'}: Permission denied" in msg and ".tmp" not in msg, msg
+
+
+def test_viz_on_a_cut_short_camera_image_is_one_line_naming_it(native_synth_db, tmp_path):
+    """Found by review: cv2.imread decoded a truncated JPEG with grey rows, libjpeg printing 'Premature
+    end of JPEG file' on stderr (a second line, from C; the MapTR loader trained on the grey rows)."""
+    db = copy_db(native_synth_db, tmp_path / "db")
+    token = first_sample_token(db)
+    rows = json.loads((db / VERSION / "sample_data.json").read_text())
+    cam = next(r for r in rows
+               if r["sample_token"] == token and r["is_key_frame"] and r["fileformat"] == "jpg")
+    cut = db / "broken" / Path(cam["filename"]).name
+    cut.parent.mkdir()
+    data = (db / cam["filename"]).read_bytes()
+    cut.write_bytes(data[: len(data) * 2 // 3])
+    cam["filename"] = str(cut.relative_to(db))
+    (db / VERSION / "sample_data.json").write_text(json.dumps(rows))
+    proc = subprocess.run([sys.executable, "-m", "nuav2", "viz", str(db), "--version", VERSION,
+                           "--sample", token, "--out", str(tmp_path / "v.png")],
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 2 and proc.stderr.count("\n") == 1, proc.stderr
+    assert f"{cut}: camera image cut short" in proc.stderr and not (tmp_path / "v.png").exists()

@@ -216,3 +216,13 @@ def test_out_through_a_symlink_loop_is_one_line(tmp_path: Path):
         code, err = run("convert", "av2", split, out, "--no-progress")
         assert code == 2 and "internal error" not in err, err
         refused(code, err, str(tmp_path / "loopA"))
+
+
+def test_out_that_is_a_dangling_symlink_is_named_as_such(tmp_path: Path):
+    """Found by review: the message was 'cannot create the output directory (File exists)'."""
+    split = fake_split(tmp_path / "av2")
+    out = tmp_path / "dangling"
+    out.symlink_to(tmp_path / "gone")
+    code, err = run("convert", "av2", split, out, "--no-progress")
+    refused(code, err, f"{out}: OUT is a dangling symbolic link (to {tmp_path / 'gone'})")
+    assert not (tmp_path / "gone").exists()

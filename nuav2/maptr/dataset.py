@@ -27,12 +27,13 @@ Vectors = list[tuple[str, np.ndarray]]
 
 
 def load_image_rgb(path: str, scale: float = 1.0) -> np.ndarray:
-    """(H, W, 3) uint8 RGB, resized by ``scale``; a missing or unreadable file is an error naming it."""
+    """(H, W, 3) uint8 RGB, resized by ``scale``; a missing, undecodable or cut-short file is an error naming
+    it (``cv2.imread`` decodes a truncated JPEG with grey rows and only a libjpeg warning on stderr)."""
     import cv2
 
-    img = cv2.imread(path, cv2.IMREAD_COLOR)
-    if img is None:
-        raise FileNotFoundError(f"{path}: image missing or not decodable")
+    from nuav2.image_decode import read_bgr
+
+    img = read_bgr(Path(path))
     if scale != 1.0:
         h, w = img.shape[:2]
         img = cv2.resize(
