@@ -16,11 +16,11 @@ import math
 import os
 import tempfile
 import traceback
-from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
 
-from nuav2.atomic import atomic_write_json
+from nuav2.convert_report import REPORT_FILE, ConvertReport, write_report
 from nuav2.executors import EXECUTORS
 from nuav2.image_sources import MODES, image_source_for, write_quality_table
 from nuav2.nuscenes_db import shards as sh
@@ -41,7 +41,6 @@ from nuav2.rig import RigSpecError, load_rig, scaled_side
 
 log = logging.getLogger(__name__)
 
-REPORT_FILE = "convert_report.json"
 
 
 MIN_IMAGE_SIDE_PX = 8  # a smaller target image holds nothing a mapping model could use
@@ -202,26 +201,6 @@ class ConvertOptions:
                "calibration": str(Path(self.calibration_dir).resolve()) if self.calibration_dir else None,
                "require_cameras": self.require_cameras}
         return hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()[:16]
-
-
-@dataclass
-class ConvertReport:
-    dataroot: str
-    version: str
-    converted: list[str] = field(default_factory=list)
-    resumed: list[str] = field(default_factory=list)
-    merged_earlier: list[str] = field(default_factory=list)  # shards in OUT from earlier runs (other SRC)
-    failed: list[dict] = field(default_factory=list)  # {"log_id", "log_dir", "error"}
-    scene_names: dict[str, str] = field(default_factory=dict)
-    table_counts: dict[str, int] = field(default_factory=dict)
-    logs: dict[str, dict] = field(default_factory=dict)  # per log run now: seconds, images, mode, worker
-
-    @property
-    def ok(self) -> bool:
-        return not self.failed and bool(self.table_counts)
-
-    def to_dict(self) -> dict:
-        return asdict(self)
 
 
 def scene_names_for(log_ids: list[str]) -> dict[str, str]:
@@ -390,6 +369,26 @@ def convert_av2(src: Path, out: Path, options: ConvertOptions | None = None) -> 
                            f"into different OUTs")
     created = not out.exists()
     prepare_output_dir(out)
+    with _out_lock(out):
+        return _convert_into(out, logs, options, created)
+
+
+@contextlib.contextmanager
+def _out_lock(out: Path) -> Iterator[None]:
+    """One conversion at a time into OUT: two at once both reported success, the last to merge silently
+    replacing the other's database (and pruning the folders the other was writing)."""
+    from nuav2.machine_lock import folder_lock
+
+    try:
+        with folder_lock(out):
+            yield
+    except BlockingIOError:
+        raise ConvertError(f"{out}: another nuav2 convert is writing into this OUT; wait for it to finish "
+                           "or give another OUT") from None
+
+
+def _convert_into(out: Path, logs: list[Path], options: ConvertOptions, created: bool) -> ConvertReport:
+    """convert_av2's work once OUT exists and is held."""
     fingerprint = options.fingerprint()
     earlier = earlier_shards(out, options.version, fingerprint, {p.name for p in logs})
     names = scene_names_for([p.name for p in logs] + sorted(earlier))
@@ -454,9 +453,9 @@ def convert_av2(src: Path, out: Path, options: ConvertOptions | None = None) -> 
                 quality.update(sh.read_meta(shard_path)["meta"].get("image_quality", {}))
             write_quality_table(out, options.version, quality)
     except BaseException:
-        _write_report(out, report)
+        write_report(out, report)
         raise
-    if not _write_report(out, report):
+    if not write_report(out, report):
         raise ConvertError(f"{out / REPORT_FILE}: cannot write the conversion report")
     if not done:
         first = report.failed[0] if report.failed else None
@@ -476,13 +475,3 @@ def prune_empty_dirs(out: Path, names: tuple[str, ...]) -> None:
         for folder, _, _ in sorted(os.walk(top), key=lambda w: -len(w[0])):
             with contextlib.suppress(OSError):
                 os.rmdir(folder)  # fails, as wanted, where files remain
-
-
-def _write_report(out: Path, report: ConvertReport) -> bool:
-    """Write ``convert_report.json``; False (logged) when it cannot be written."""
-    try:
-        atomic_write_json(out / REPORT_FILE, report.to_dict(), indent=1)
-        return True
-    except OSError as e:
-        log.error("%s: cannot write the conversion report (%s)", out / REPORT_FILE, e.strerror or e)
-        return False

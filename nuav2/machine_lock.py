@@ -1,4 +1,5 @@
-"""One process at a time per machine for a step that must not run concurrently (a file lock)."""
+"""One process at a time for a step that must not run concurrently: per machine (a lock file) or per
+folder (a lock on the folder itself)."""
 
 from __future__ import annotations
 
@@ -23,5 +24,29 @@ def machine_lock(path: Path) -> Iterator[bool]:
     try:
         fcntl.flock(fd, fcntl.LOCK_EX)
         yield True
+    finally:
+        os.close(fd)  # closing releases the lock
+
+
+@contextlib.contextmanager
+def folder_lock(path: Path) -> Iterator[bool]:
+    """Hold an exclusive, non-blocking ``flock`` on the folder ``path`` itself (no lock file left in it)
+    for the ``with`` block: BlockingIOError at once if another process holds it. Yields False, unlocked,
+    where the file system cannot lock a folder (NFS without flock): the work then runs as before."""
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_DIRECTORY)
+    except OSError:
+        yield False
+        return
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            raise
+        except OSError:
+            locked = False
+        else:
+            locked = True
+        yield locked
     finally:
         os.close(fd)  # closing releases the lock

@@ -226,3 +226,20 @@ def test_out_that_is_a_dangling_symlink_is_named_as_such(tmp_path: Path):
     code, err = run("convert", "av2", split, out, "--no-progress")
     refused(code, err, f"{out}: OUT is a dangling symbolic link (to {tmp_path / 'gone'})")
     assert not (tmp_path / "gone").exists()
+
+
+def test_a_second_conversion_into_a_busy_out_is_refused(tmp_path: Path):
+    """Found by review: two converts into one OUT at once both reported success, the later merge
+    silently replacing the other's database. The folder lock is what a running convert holds."""
+    from nuav2.machine_lock import folder_lock
+
+    split = fake_split(tmp_path / "av2")
+    out = tmp_path / "out"
+    out.mkdir()
+    with folder_lock(out) as locked:
+        assert locked
+        code, err = run("convert", "av2", split, out, "--no-progress")
+    refused(code, err, f"{out}: another nuav2 convert is writing into this OUT")
+    assert tree(out) == []
+    code, err = run("convert", "av2", split, out, "--no-progress")  # free again: this one reads the log
+    assert "another nuav2 convert" not in err
