@@ -188,3 +188,16 @@ def test_infos_out_that_is_a_file_is_named_as_such(curved_db: Path, tmp_path: Pa
     out.write_text("x")
     assert _refused("infos", curved_db, "--version", VERSION, "--out", out) == f"nuav2 infos: --out {out}: " \
                                                                                 "is not a folder"
+
+
+def test_infos_refuse_a_split_without_scenes(curved_db: Path, tmp_path: Path):
+    """Found by review: --splits geo_discarded (empty after nuav2 split) wrote a 0-sample .pkl, exit 0."""
+    db = tmp_path / "db"
+    shutil.copytree(curved_db, db, symlinks=True)
+    code, _, err = cli("split", db, "--version", VERSION)
+    assert code == 0, err
+    assert json.loads((db / VERSION / "splits.json").read_text())["geo_val"] == []
+    msg = _refused("infos", db, "--version", VERSION, "--out", tmp_path / "out", "--splits", "geo_train",
+                   "geo_val")
+    assert "split(s) geo_val hold no scenes in" in msg and "geo_train" in msg.split("splits with scenes:")[1]
+    assert not (tmp_path / "out").exists() or not list((tmp_path / "out").iterdir())

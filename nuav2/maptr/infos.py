@@ -343,6 +343,10 @@ def export_infos(
     index = _SceneIndex(dataroot, version)
     splits = list(splits) if splits else available_splits(index)
     jobs = {split: split_scene_names(index, split) for split in splits}
+    empty = [split for split, names in jobs.items() if not names]
+    if empty:  # an empty .pkl would load as a dataset of length 0, far from here
+        raise ValueError(f"split(s) {', '.join(empty)} hold no scenes in {dataroot}/{version}, nothing to "
+                         f"export; splits with scenes: {', '.join(available_splits(index)) or 'none'}")
     maker_args = (str(dataroot), version, tuple(patch), max_sweeps,
                   tuple(cameras) if cameras else None, path_root)
     written: dict[str, Path] = {}
@@ -368,7 +372,11 @@ def export_infos(
                     "MapTR's temporal queue will see scene changes mid-sequence",
                     split,
                 )
-            log.info("wrote %s (%d samples)", path, stream.count)
+            if stream.count:
+                log.info("wrote %s (%d samples)", path, stream.count)
+            else:
+                log.warning("wrote %s with no samples: the %d scene(s) of split %s have no keyframes",
+                            path, len(names), split)
             written[split] = path
     if not cameras and not default_cameras(index):  # every keyframe's cams == {}
         log.warning(
