@@ -51,12 +51,17 @@ def test_workers_exit_when_the_main_process_is_killed(synth_split: Path, tmp_pat
                             env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
         assert _wait_for(lambda: len(list(hook.glob("*.attempts"))) == 2, 120), "workers never started"
-        workers = [int(p.read_text().split()[0]) for p in hook.glob("*.attempts")]
+        attempts_before = list(hook.glob("*.attempts"))
+        workers = [int(p.read_text().split()[0]) for p in attempts_before]
         assert all(_alive(pid) for pid in workers)
         main.send_signal(signal.SIGKILL)
         main.wait(10)
         assert _wait_for(lambda: not any(_alive(pid) for pid in workers), 15), \
             f"workers {[p for p in workers if _alive(p)]} outlived the killed main process"
+        # the third log, queued for the pool: no worker may start it once told to stop (concurrent.futures
+        # caught the SystemExit as the task's error and handed the worker the next task)
+        assert sorted(p.stem for p in hook.glob("*.attempts")) == sorted(p.stem for p in attempts_before)
+        assert len(list(hook.glob("*.stopped"))) == 2  # both parked logs unwound (their cleanup ran)
     finally:
         main.kill()
         for p in hook.glob("*.attempts"):

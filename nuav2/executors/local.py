@@ -35,11 +35,39 @@ PARENT_POLL_S = 1.0
 EXIT_GRACE_S = 10.0
 
 
+_STOPPING: list[int] = []  # in a worker: the exit code once SIGTERM told it to stop
+
+
 def _exit_on_sigterm(signum, frame) -> None:  # noqa: ARG001 - signal handler signature
     # SystemExit unwinds the task, so temp files and .partial directories are removed on the way out;
     # a second SIGTERM (the process group's, then the main process's) must not cut that cleanup short.
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    _STOPPING.append(128 + signum)
     raise SystemExit(128 + signum)
+
+
+def _worker_task(fn, *args):
+    """``fn(*args)`` in a pool worker; once SIGTERM has unwound it, the worker ends. concurrent.futures'
+    worker loop catches the SystemExit as the task's error and takes the next queued task: a worker
+    whose driver was killed started and finished another log (its shard merged by nobody), with
+    SIGTERM ignored from then on, until the parent watch cut it off 10 s later."""
+    if _STOPPING:
+        os._exit(_STOPPING[0])
+    try:
+        return fn(*args)
+    except SystemExit:
+        if _STOPPING:
+            os._exit(_STOPPING[0])  # the task's cleanup ran while SystemExit unwound it
+        raise
+
+
+class _StoppablePool(ProcessPoolExecutor):
+    """A process pool whose tasks run through :func:`_worker_task`."""
+
+    def submit(self, fn, /, *args, **kwargs):
+        if kwargs:
+            raise TypeError("worker_pool tasks take positional arguments only")
+        return super().submit(_worker_task, fn, *args)
 
 
 def _watch_parent(parent_pid: int) -> None:
@@ -72,8 +100,8 @@ def worker_pool(workers: int, initializer=None, initargs: tuple = ()) -> Iterato
     """A pool of spawned processes that exit with this one (``initializer`` runs after that is set up),
     shut down normally at the end, but on an interrupt (or any error) stopped at once: queued work
     cancelled, workers sent SIGTERM (their cleanup runs), killed after a grace period."""
-    pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
-                               initializer=_init_worker, initargs=(os.getpid(), initializer, initargs))
+    pool = _StoppablePool(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
+                          initializer=_init_worker, initargs=(os.getpid(), initializer, initargs))
     try:
         yield pool
     except BaseException:
