@@ -43,12 +43,15 @@ def test_ray_tables_are_identical_to_one_local_worker_and_a_rerun_resumes(
         assert summary["node"] and summary["gpus"] == []
     assert not list((out / SHARDS_DIRNAME).glob(".nuav2-visible-*"))  # the driver's marker is removed
 
-    # A killed driver: one shard and the merged tables gone, a half-written shard left behind.
+    # A killed driver: one shard and the merged tables gone, a half-written shard and the driver's
+    # marker left behind (found by review: the marker stayed in OUT through every later run).
     first, second, third = sorted(report["converted"])
     shutil.rmtree(out / SHARDS_DIRNAME / VERSION / second)
     shutil.rmtree(out / VERSION)
     (out / SHARDS_DIRNAME / VERSION / f".{second}.x.partial").mkdir()
+    (out / SHARDS_DIRNAME / ".nuav2-visible-0123abcd").write_text("0123abcd")  # its marker, left for good
     assert convert(synth_split, out, "--executor", "ray") == 0
+    assert not list((out / SHARDS_DIRNAME).glob(".nuav2-visible-*"))
     report = json.loads((out / "convert_report.json").read_text())
     assert report["resumed"] == [first, third] and report["converted"] == [second]
     assert tables(out) == reference_tables

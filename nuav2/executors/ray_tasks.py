@@ -333,6 +333,10 @@ def _run_connected(ray, jobs: list[Path], root: Path, options, progress: BatchPr
 
     token = uuid.uuid4().hex
     marker = marker_path(root, token)
+    # A driver killed with SIGKILL left its marker; convert holds OUT's lock, so any other one is stale.
+    for stale in marker.parent.glob(f"{MARKER_PREFIX}*"):
+        with contextlib.suppress(OSError):
+            stale.unlink()
     atomic_write_bytes(marker, token.encode())
     try:
         check_shared_storage(ray, root, token)
