@@ -54,6 +54,9 @@ class DecoderLayer(nn.Module):
         super().__init__()
         d, p = cfg.decoder_dim, cfg.num_points
         self.point_in = nn.Linear(bev_channels + 2, d // 4)
+        # which of the query's points this is (MapTR's point queries): without it a point's offset knew
+        # only where the point is, and refinement layers could not put a query's points in GT order
+        self.point_embed = nn.Parameter(torch.randn(p, d // 4) * 0.1)
         self.gather = nn.Linear(p * (d // 4), d)
         self.norm1 = nn.LayerNorm(d)
         self.attn = nn.MultiheadAttention(d, cfg.decoder_heads, batch_first=True)
@@ -89,7 +92,7 @@ class DecoderLayer(nn.Module):
         grid = pts * 2.0 - 1.0  # x -> columns, y -> rows (align_corners=False: cell centres)
         feat = F.grid_sample(bev, grid, mode="bilinear", padding_mode="zeros", align_corners=False)
         feat = feat.permute(0, 2, 3, 1)  # (B, Q, P, C)
-        pf = F.relu(self.point_in(torch.cat([feat, pts], -1)))  # (B, Q, P, d/4)
+        pf = F.relu(self.point_in(torch.cat([feat, pts], -1)) + self.point_embed)  # (B, Q, P, d/4)
         q = self.norm1(q + self.gather(pf.flatten(2)))
         q = self.norm2(q + self.attn(q, q, q, attn_mask=attn_mask, need_weights=False)[0])
         qp = q + self.pos(pts.flatten(2))
