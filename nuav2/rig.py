@@ -34,6 +34,14 @@ def scaled_side(px: int, scale: float) -> int:
     return max(1, int(round(px * scale)))
 
 
+# Where warp reads a source image's colours (its bilinear taps, and the exposure samples it harmonises
+# with), the ego mask is grown by this much: a tap one pixel off the body and JPEG's chroma bleed carry
+# the body's paint. Found by review: the body's edge colour, inpainted over the unseen strip behind the
+# ego, tinted about a tenth of CAM_BACK. (Render mode's training mask is the exact one: grown by 2 px
+# of its reduced images it dropped the ground right behind the ego, CAM_BACK's view, from training.)
+EGO_COLOUR_MARGIN_PX = 2
+
+
 @dataclass(frozen=True)
 class CameraSpec:
     """One pinhole camera: intrinsics at ``width`` x ``height`` and its pose in the ego frame."""
@@ -59,13 +67,16 @@ class CameraSpec:
                       for p in self.ego_mask_polygons)
         return replace(self, width=w, height=h, K=K, ego_mask_polygons=polys)
 
-    def ego_mask(self) -> np.ndarray:
-        """Boolean (H, W) image, True where the ego body hides the scene."""
+    def ego_mask(self, margin_px: int = 0) -> np.ndarray:
+        """Boolean (H, W) image, True where the ego body hides the scene, grown by ``margin_px`` pixels
+        (:data:`EGO_COLOUR_MARGIN_PX` where colours are read: see there)."""
         import cv2
 
         mask = np.zeros((self.height, self.width), np.uint8)
         for poly in self.ego_mask_polygons:
             cv2.fillPoly(mask, [np.round(poly).astype(np.int32)], 1)
+        if margin_px > 0 and self.ego_mask_polygons:
+            mask = cv2.dilate(mask, np.ones((2 * margin_px + 1, 2 * margin_px + 1), np.uint8))
         return mask.astype(bool)
 
 

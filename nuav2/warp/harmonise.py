@@ -30,7 +30,7 @@ from nuav2.exposure import (
 )
 from nuav2.geometry import F64, T_inverse, translation_T
 from nuav2.image_decode import load_image_u8
-from nuav2.rig import CameraSpec
+from nuav2.rig import EGO_COLOUR_MARGIN_PX, CameraSpec
 from nuav2.scene import CameraFrame, SceneLog
 from nuav2.warp.depth_proxy import free_of_boxes
 from nuav2.warp.tracks import BoxesAt
@@ -101,7 +101,7 @@ def solve_source_exposure(scene: SceneLog, frames: dict[str, list[CameraFrame]],
             f = frames[ch][int(j)]
             img, small = read_reduced(Path(f.path), cam)
             city_T_cam = scene.city_T_ego_at(int(f.timestamp_ns)) @ cam.ego_T_cam
-            valid = ~small.ego_mask() if small.ego_mask_polygons else None
+            valid = ~small.ego_mask(EGO_COLOUR_MARGIN_PX) if small.ego_mask_polygons else None
             boxes = boxes_at(int(f.timestamp_ns)) if boxes_at is not None else None
             if boxes is not None and len(boxes):
                 free = free_of_boxes(small, city_T_cam, boxes.city_T_box, boxes.size_lwh)

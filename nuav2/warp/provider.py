@@ -30,7 +30,7 @@ from nuav2.exposure import ExposureConfig, ExposureModel
 from nuav2.geometry import F64, T_inverse
 from nuav2.image_decode import read_bgr
 from nuav2.nuscenes_db.images import ImageSourceError, RenderedImages
-from nuav2.rig import CameraSpec
+from nuav2.rig import EGO_COLOUR_MARGIN_PX, CameraSpec
 from nuav2.scene import CameraFrame, SceneLog
 from nuav2.warp.actor_points import actor_models, gather_track_points
 from nuav2.warp.backward_warp import (
@@ -226,7 +226,8 @@ class WarpRenderer:
     def _ego_valid(self, camera: CameraSpec) -> np.ndarray | None:
         with self._lock:
             if camera.channel not in self._valid:
-                self._valid[camera.channel] = ~camera.ego_mask() if camera.ego_mask_polygons else None
+                self._valid[camera.channel] = (~camera.ego_mask(EGO_COLOUR_MARGIN_PX)
+                                               if camera.ego_mask_polygons else None)
             return self._valid[camera.channel]
 
     def source_view(self, channel: str, index: int) -> SourceView:
