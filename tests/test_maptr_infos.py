@@ -199,5 +199,7 @@ def test_infos_refuse_a_split_without_scenes(curved_db: Path, tmp_path: Path):
     assert json.loads((db / VERSION / "splits.json").read_text())["geo_val"] == []
     msg = _refused("infos", db, "--version", VERSION, "--out", tmp_path / "out", "--splits", "geo_train",
                    "geo_val")
-    assert "split(s) geo_val hold no scenes in" in msg and "geo_train" in msg.split("splits with scenes:")[1]
+    with_scenes = msg.split("splits with scenes:")[1]
+    assert "split(s) geo_val hold no scenes in" in msg and "geo_train" in with_scenes
+    assert "geo_val" not in with_scenes
     assert not (tmp_path / "out").exists() or not list((tmp_path / "out").iterdir())

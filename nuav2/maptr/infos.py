@@ -341,12 +341,14 @@ def export_infos(
     from nuav2.executors.progress import BatchProgress
 
     index = _SceneIndex(dataroot, version)
+    asked = bool(splits)
     splits = list(splits) if splits else available_splits(index)
     jobs = {split: split_scene_names(index, split) for split in splits}
     empty = [split for split, names in jobs.items() if not names]
-    if empty:  # an empty .pkl would load as a dataset of length 0, far from here
+    if empty and asked:  # an empty .pkl would load as a dataset of length 0, far from here
+        full = [s for s in available_splits(index) if split_scene_names(index, s)]
         raise ValueError(f"split(s) {', '.join(empty)} hold no scenes in {dataroot}/{version}, nothing to "
-                         f"export; splits with scenes: {', '.join(available_splits(index)) or 'none'}")
+                         f"export; splits with scenes: {', '.join(full) or 'none'}")
     maker_args = (str(dataroot), version, tuple(patch), max_sweeps,
                   tuple(cameras) if cameras else None, path_root)
     written: dict[str, Path] = {}
@@ -375,8 +377,8 @@ def export_infos(
             if stream.count:
                 log.info("wrote %s (%d samples)", path, stream.count)
             else:
-                log.warning("wrote %s with no samples: the %d scene(s) of split %s have no keyframes",
-                            path, len(names), split)
+                log.warning("wrote %s with no samples (split %s: %d scene(s) with keyframes)",
+                            path, split, len(names))
             written[split] = path
     if not cameras and not default_cameras(index):  # every keyframe's cams == {}
         log.warning(
