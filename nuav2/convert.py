@@ -379,12 +379,14 @@ def _out_lock(out: Path) -> Iterator[None]:
     replacing the other's database (and pruning the folders the other was writing)."""
     from nuav2.machine_lock import folder_lock
 
+    held = contextlib.ExitStack()
     try:
-        with folder_lock(out):
-            yield
-    except BlockingIOError:
+        held.enter_context(folder_lock(out))
+    except BlockingIOError:  # the lock alone: the same error from the work itself is not a busy OUT
         raise ConvertError(f"{out}: another nuav2 convert is writing into this OUT; wait for it to finish "
                            "or give another OUT") from None
+    with held:
+        yield
 
 
 def _convert_into(out: Path, logs: list[Path], options: ConvertOptions, created: bool) -> ConvertReport:

@@ -206,9 +206,9 @@ def test_demo_bad_rig_leaves_nothing_behind(tmp_path, capsys):
     assert not out.exists()
 
 
-@pytest.mark.parametrize("flag, value, modes", [("--rig", "nope", "warp and render and truth"),
-                                                ("--rig", "nuscenes", "warp and render and truth"),
-                                                ("--scale", "0.1", "warp and render and truth"),
+@pytest.mark.parametrize("flag, value, modes", [("--rig", "nope", "warp and render"),
+                                                ("--rig", "nuscenes", "warp and render"),
+                                                ("--scale", "0.1", "warp and render"),
                                                 ("--recon-preset", "default", "render")])
 def test_demo_flags_native_mode_does_not_use_are_refused(tmp_path, capsys, flag, value, modes):
     """Found by review: demo --mode native --rig truck5 ran, and recorded "rig": null."""

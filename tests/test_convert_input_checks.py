@@ -243,3 +243,18 @@ def test_a_second_conversion_into_a_busy_out_is_refused(tmp_path: Path):
     assert tree(out) == []
     code, err = run("convert", "av2", split, out, "--no-progress")  # free again: this one reads the log
     assert "another nuav2 convert" not in err
+
+
+def test_only_the_lock_itself_is_reported_as_a_busy_out(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
+    """Found by review: an EAGAIN BlockingIOError from the work (a non-blocking pipe, ...) was reported
+    as 'another nuav2 convert is writing into this OUT'."""
+    import errno
+
+    import nuav2.convert as convert_mod
+
+    def work_hits_eagain(*args, **kwargs):
+        raise BlockingIOError(errno.EAGAIN, "Resource temporarily unavailable")
+
+    monkeypatch.setattr(convert_mod, "_convert_into", work_hits_eagain)
+    with pytest.raises(BlockingIOError, match="Resource temporarily unavailable"):
+        convert_mod.convert_av2(fake_split(tmp_path / "av2"), tmp_path / "out")

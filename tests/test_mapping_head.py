@@ -3,6 +3,8 @@ target, so it has to know which point is which, not only where each point is."""
 
 from __future__ import annotations
 
+import importlib
+
 import torch
 
 from nuav2.mapping.config import MapModelConfig
@@ -27,3 +29,39 @@ def test_a_layer_moves_coinciding_points_of_one_query_apart():
         _, new_pts, _ = layer(q, pts, bev, memory)
     spread = new_pts[0].std(dim=1).norm(dim=-1)  # per query: how far its points now lie apart
     assert torch.isfinite(new_pts).all() and bool((spread > 1e-3).all()), spread
+
+
+def test_weights_of_the_layout_before_the_point_embedding_are_refused_by_name(tmp_path):
+    """Found by review: a run saved before the embedding was reused by train() as done (its fingerprint
+    named no architecture) and load_model failed with torch's 'Missing key(s)' list."""
+    import dataclasses
+    import json
+
+    import pytest
+
+    train_mod = importlib.import_module("nuav2.mapping.train")  # nuav2.mapping.train is also a function
+    from nuav2.mapping.model import MapModel
+
+    cfg = MapModelConfig()
+    old = {k: v for k, v in MapModel(cfg).state_dict().items() if "point_embed" not in k}
+    run = tmp_path / "run"
+    run.mkdir()
+    torch.save(old, run / train_mod.MODEL)
+    (run / train_mod.RUN_JSON).write_text(json.dumps({"model_config": dataclasses.asdict(cfg)}))
+    with pytest.raises(ValueError, match=r"model\.pt: weights of another model layout .* retrain"):
+        train_mod.load_model(run)
+
+
+def test_the_run_fingerprint_names_the_architecture(monkeypatch):
+    train_mod = importlib.import_module("nuav2.mapping.train")  # nuav2.mapping.train is also a function
+    from nuav2.mapping.config import TrainConfig
+
+    class Data:
+        meta = {"keyframes": 3}
+
+        def __len__(self):
+            return 3
+
+    now = train_mod.run_fingerprint(MapModelConfig(), TrainConfig(), Data(), None)
+    monkeypatch.setattr(train_mod, "ARCHITECTURE", train_mod.ARCHITECTURE - 1)
+    assert train_mod.run_fingerprint(MapModelConfig(), TrainConfig(), Data(), None) != now

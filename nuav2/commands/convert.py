@@ -26,14 +26,16 @@ _MODE_FLAGS = {"rig": ("--rig", _TARGET_RIG_MODES), "scale": ("--scale", _TARGET
                "image_link": ("--image-link", ("native",))}
 
 
-def refuse_other_mode_flags(args: argparse.Namespace) -> None:
+def refuse_other_mode_flags(args: argparse.Namespace, offered: tuple[str, ...] = MODES) -> None:
     """A flag that ``args.mode`` does not use (``--rig`` with native, ...) is a UsageError, not ignored;
-    ``convert`` and ``demo`` share it (a flag the command lacks counts as not given)."""
+    ``convert`` and ``demo`` share it (a flag the command lacks counts as not given; ``offered``: the
+    command's own modes, the only ones the message names)."""
     from nuav2.cli import UsageError
 
     for name, (flag, modes) in _MODE_FLAGS.items():
         if getattr(args, name, None) is not None and args.mode not in modes:
-            raise UsageError(f"{flag} applies to --mode {' and '.join(modes)} only, not --mode {args.mode}")
+            named = " and ".join(m for m in modes if m in offered)
+            raise UsageError(f"{flag} applies to --mode {named} only, not --mode {args.mode}")
 
 
 def _options(args: argparse.Namespace):  # -> nuav2.convert.ConvertOptions (imported lazily)

@@ -7,6 +7,8 @@ from pathlib import Path
 
 from nuav2.cli_types import path
 
+DEMO_MODES = ("render", "warp", "native")
+
 
 def _run(args: argparse.Namespace) -> int:
     from nuav2.bench.cli_args import parse_presets
@@ -14,7 +16,7 @@ def _run(args: argparse.Namespace) -> int:
     from nuav2.demo import DemoOptions, format_summary, run_demo
 
     presets = tuple(parse_presets(args.preset))  # a bad value: one line from nuav2.cli
-    refuse_other_mode_flags(args)  # --rig with --mode native, ...: refused as convert refuses it
+    refuse_other_mode_flags(args, DEMO_MODES)  # --rig with --mode native, ...: refused as convert does
     given = {name: getattr(args, name) for name in ("rig", "scale", "recon_preset")
              if getattr(args, name) is not None}
     # run_demo checks --rig (and the rest) before it synthesises anything
@@ -43,7 +45,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=non_negative_int, default=0, help="world seed, >= 0 (default: %(default)s)")
     p.add_argument("--preset", default="easy",
                    help="synthetic realism preset(s): easy,medium,hard or all (default: %(default)s)")
-    p.add_argument("--mode", choices=["render", "warp", "native"], default="render",
+    p.add_argument("--mode", choices=DEMO_MODES, default="render",
                    help="render: Gaussian splatting (default); warp: fast depth warp; native: AV2 cameras")
     # defaults None, so that one given with --mode native is refused; DemoOptions holds the real ones
     p.add_argument("--rig", default=None,

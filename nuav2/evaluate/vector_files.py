@@ -10,15 +10,12 @@ from __future__ import annotations
 
 import contextlib
 import json
-import re
 from pathlib import Path
 
 import numpy as np
 
-_BOOL_WORD = re.compile(r"\b(?:true|false)\b")
 
-
-def _parse_vector(vec, where: str, is_pred: bool, may_hold_bools: bool = True) -> tuple:
+def _parse_vector(vec, where: str, is_pred: bool) -> tuple:
     """(cls_name, (N, 2) float64 x, y points[, confidence]) of one vector record; a ValueError naming
     ``where`` (file, sample, vector index) and the field on anything else, so no bad record
     reaches the evaluator or the drawing code as an unhashable name or a None score."""
@@ -27,7 +24,7 @@ def _parse_vector(vec, where: str, is_pred: bool, may_hold_bools: bool = True) -
     name = vec["cls_name"]
     if not isinstance(name, str):
         raise ValueError(f"{where}: 'cls_name' must be a string, got {_show(name)}")
-    pts = _points(vec["pts"], where, may_hold_bools)
+    pts = _points(vec["pts"], where)
     if not is_pred:
         return (name, pts)
     if "confidence_level" not in vec:
@@ -41,11 +38,11 @@ def _show(value) -> str:
     return text if len(text) <= 60 else text[:57] + "..."
 
 
-def _points(pts, where: str, may_hold_bools: bool = True) -> np.ndarray:
+def _points(pts, where: str) -> np.ndarray:
     """'pts' ([x, y] or [x, y, z] points) as (N, 2) finite float64 x, y, z dropped (an empty list: no
-    points); numpy converts well-formed lists in one pass, anything else gets a message saying which
-    point is wrong and how. ``may_hold_bools``: the file has a true/false somewhere, which numpy would
-    take as 1/0 among numbers, so the points are checked one by one."""
+    points); numpy converts well-formed lists in one pass (true/false among numbers, which it would take
+    as 1/0, are looked for by identity: 1.5 us a vector), anything else gets a message saying which
+    point is wrong and how."""
     arr = None
     if isinstance(pts, list) and pts:
         with contextlib.suppress(ValueError, TypeError):
@@ -53,7 +50,7 @@ def _points(pts, where: str, may_hold_bools: bool = True) -> np.ndarray:
     elif isinstance(pts, list):
         return np.zeros((0, 2))
     odd = arr is None or arr.dtype.kind not in "iuf" or arr.ndim != 2 or arr.shape[1] not in (2, 3)
-    if odd or may_hold_bools:
+    if odd or _holds_bool(pts):
         problem = _points_problem(pts)
         if problem:
             raise ValueError(f"{where}: 'pts' {problem}")
@@ -66,6 +63,14 @@ def _points(pts, where: str, may_hold_bools: bool = True) -> np.ndarray:
     if not np.isfinite(arr).all():
         raise ValueError(f"{where}: 'pts' holds NaN or Inf")
     return np.ascontiguousarray(arr[:, :2])
+
+
+def _holds_bool(pts: list) -> bool:
+    for p in pts:
+        for x in p:
+            if x is True or x is False:
+                return True
+    return False
 
 
 def _points_problem(pts) -> str | None:
@@ -134,8 +139,7 @@ def _unique_keys(pairs: list) -> dict:
 def _load_vector_file(path: str | Path, key: str, is_pred: bool) -> dict:
     path = Path(path)
     try:
-        text = path.read_text()
-        data = json.loads(text, object_pairs_hook=_unique_keys)
+        data = json.loads(path.read_text(), object_pairs_hook=_unique_keys)
     except FileNotFoundError:
         raise FileNotFoundError(f"{path}: file not found") from None
     except _RepeatedKey as e:
@@ -146,8 +150,6 @@ def _load_vector_file(path: str | Path, key: str, is_pred: bool) -> dict:
         raise ValueError(f"{path}: not valid JSON here (nested too deeply)") from None
     except UnicodeDecodeError as e:
         raise ValueError(f"{path}: not UTF-8 text ({e.reason} at byte {e.start})") from None
-    # numpy takes true/false mixed with numbers as 1/0: look point by point when the text holds any
-    may_hold_bools = _BOOL_WORD.search(text) is not None
     out: dict = {}
     for token, vectors in _entries(data, path, key):
         if token in out:
@@ -155,8 +157,7 @@ def _load_vector_file(path: str | Path, key: str, is_pred: bool) -> dict:
         if not isinstance(vectors, list):
             raise ValueError(f"{path}: vectors of sample {token} must be a list")
         out[token] = [
-            _parse_vector(v, f"{path}: sample {token} vector {j}", is_pred, may_hold_bools)
-            for j, v in enumerate(vectors)
+            _parse_vector(v, f"{path}: sample {token} vector {j}", is_pred) for j, v in enumerate(vectors)
         ]
     return out
 

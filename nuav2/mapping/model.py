@@ -7,6 +7,8 @@ map lines, and their perspective-view segmentation on the image features).
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import torch
 from torch import nn
 
@@ -14,6 +16,20 @@ from nuav2.mapping.backbone import ImageBackbone
 from nuav2.mapping.config import MapModelConfig
 from nuav2.mapping.head import BEVEncoder, VectorDecoder
 from nuav2.mapping.lift import LiftSplat
+
+# The weights' layout, in every run's fingerprint: runs and checkpoints of another layout retrain instead
+# of being reused. 2: the decoder's per-point index embedding (323a7ba).
+ARCHITECTURE = 2
+
+
+def load_weights(model: nn.Module, state: dict, source: str | Path) -> None:
+    """``model.load_state_dict(state)``, or a ValueError naming ``source`` when the weights are of
+    another layout (saved before an architecture change) instead of torch's list of keys."""
+    try:
+        model.load_state_dict(state)
+    except RuntimeError as e:
+        raise ValueError(f"{source}: weights of another model layout (saved by an older nuav2, model "
+                         f"architecture {ARCHITECTURE} now): retrain ({str(e).splitlines()[0]})") from None
 
 
 class MapModel(nn.Module):

@@ -28,7 +28,7 @@ from nuav2.mapping.augment import bev_flip, photometric, random_rotation
 from nuav2.mapping.config import MapModelConfig, TrainConfig, fingerprint
 from nuav2.mapping.data import MapTensors
 from nuav2.mapping.losses import dense_loss, depth_loss, set_loss
-from nuav2.mapping.model import MapModel
+from nuav2.mapping.model import ARCHITECTURE, MapModel, load_weights
 
 log = logging.getLogger(__name__)
 
@@ -62,7 +62,7 @@ def run_fingerprint(
     """Everything a run's result depends on; the initial weights by content (a retrained
     pretraining run invalidates its fine-tuning runs)."""
     init = hashlib.sha256(Path(init_weights).read_bytes()).hexdigest()[:16] if init_weights else None
-    return fingerprint(model_cfg, train_cfg, data.meta, len(data), init)
+    return fingerprint(model_cfg, train_cfg, data.meta, len(data), init, {"architecture": ARCHITECTURE})
 
 
 def _save_atomic(obj, path: Path) -> None:
@@ -78,7 +78,7 @@ def load_model(run_dir: str | Path) -> MapModel:
     run_dir = Path(run_dir)
     info = json.loads((run_dir / RUN_JSON).read_text())
     model = MapModel(model_config_from_dict(info["model_config"]))
-    model.load_state_dict(torch.load(run_dir / MODEL, weights_only=True))
+    load_weights(model, torch.load(run_dir / MODEL, weights_only=True), run_dir / MODEL)
     return model.eval()
 
 
@@ -142,7 +142,7 @@ def train(
     torch.manual_seed(train_cfg.seed)
     model = MapModel(model_cfg)
     if init_weights:
-        model.load_state_dict(torch.load(init_weights, weights_only=True))
+        load_weights(model, torch.load(init_weights, weights_only=True), init_weights)
     opt = torch.optim.AdamW(model.parameters(), lr=train_cfg.lr, weight_decay=train_cfg.weight_decay)
     step, curve, losses = 0, [], []
     elapsed = {"wall_s": 0.0, "cpu_s": 0.0, "eval_wall_s": 0.0}
