@@ -113,3 +113,29 @@ def test_markdown_tables_say_how_they_were_measured(run):
     warp_row = next(line for line in two.splitlines() if line.startswith("| warp |"))
     assert f"{ground + 1:.2f} ± 1.00" in warp_row and "mean ± std over seeds" in two
     assert f"| easy, 0.3 s, seed {other['seed']} |" in two
+
+
+def test_markdown_rows_fill_their_header_and_no_render_keeps_the_timings(run):
+    """Found by review: the paint-floor row had one cell too few (its value under 'SSIM ground'), and
+    with --no-render the rotation and warp timings were left out of the markdown."""
+    import copy
+
+    from nuav2.bench.markdown import modes_markdown
+
+    result = {"command": "nuav2 bench modes (test)", "machine_at_start": {"load_1_5_15": [1.0, 1.0, 1.0],
+                                                                         "cpu_count": 2},
+              "load_1_5_15_at_end": [1.5, 1.0, 1.0]}
+    no_render = copy.deepcopy(run)
+    no_render["modes"].pop("render", None)
+    no_render.pop("ratios", None)
+    for runs in ([run], [no_render]):
+        text = modes_markdown({**result, "runs": runs})
+        tables = [block.splitlines() for block in text.split("\n\n") if block.startswith("|")]
+        assert len(tables) == 2, text  # quality and time
+        for table in tables:
+            widths = {line.count("|") for line in table}
+            assert len(widths) == 1, table
+        floor = next(line for line in text.splitlines() if line.startswith("| ground truth (paint floor)"))
+        assert floor.split("|")[-2].strip() != "–"
+        warp_time = f"{run['modes']['warp']['per_frame']['wall_s_mean']:.3f}"
+        assert warp_time in tables[1][2], tables[1]

@@ -70,7 +70,7 @@ def modes_markdown(result: dict) -> str:
                          _cells(by_preset, lambda r, m=m: r["modes"][m]["quality"]["ssim"]["whole"], ".3f"),
                          _cells(by_preset, lambda r, m=m: r["modes"][m]["quality"]["ssim"]["ground"], ".3f"),
                          _cells(by_preset, lambda r, m=m: r["modes"][m]["quality"]["paint_median_px"])])
-        rows.append(["ground truth (paint floor)", *["–"] * 6,
+        rows.append(["ground truth (paint floor)", *["–"] * (len(REGIONS) + 2),
                      _cells(by_preset, lambda r: r["paint_floor_median_px"])])
         parts.append(_table(header, rows))
     header = ["log", "frames", "rotation s/frame", "warp s/frame", "render s/frame",
@@ -79,24 +79,26 @@ def modes_markdown(result: dict) -> str:
     rows = []
     for r in runs:
         m = r["modes"]
-        if "render" not in m:
-            continue
-        ratio = r["ratios"]
 
         def wc(d: dict, a: str = "wall_s_mean", b: str = "cpu_s_mean") -> str:
             return f"{d[a]:.3f} ({d[b]:.3f})"
 
         seed = f", seed {r['seed']}" if len({x["seed"] for x in runs}) > 1 else ""
+        render = [wc(m["warp"]["amortised_per_frame"], "wall_s", "cpu_s")]
+        if "render" in m:  # else (--no-render) the rotation and warp timings alone
+            ratio = r["ratios"]
+            render = [wc(m["render"]["per_frame"]),
+                      f"{ratio['render_over_warp_per_frame_wall']:.1f}x "
+                      f"({ratio['render_over_warp_per_frame_cpu']:.1f}x)",
+                      f"{m['render']['setup']['wall_s']:.0f} ({m['render']['setup']['cpu_s']:.0f})",
+                      *render,
+                      wc(m["render"]["amortised_per_frame"], "wall_s", "cpu_s"),
+                      f"{ratio['render_over_warp_amortised_wall']:.1f}x "
+                      f"({ratio['render_over_warp_amortised_cpu']:.1f}x)"]
+        else:
+            render = ["–", "–", "–", *render, "–", "–"]
         rows.append([f"{r['preset']}, {r['seconds']:g} s{seed}", str(r["frames"]),
-                     wc(m["rotation"]["per_frame"]),
-                     wc(m["warp"]["per_frame"]), wc(m["render"]["per_frame"]),
-                     f"{ratio['render_over_warp_per_frame_wall']:.1f}x "
-                     f"({ratio['render_over_warp_per_frame_cpu']:.1f}x)",
-                     f"{m['render']['setup']['wall_s']:.0f} ({m['render']['setup']['cpu_s']:.0f})",
-                     wc(m["warp"]["amortised_per_frame"], "wall_s", "cpu_s"),
-                     wc(m["render"]["amortised_per_frame"], "wall_s", "cpu_s"),
-                     f"{ratio['render_over_warp_amortised_wall']:.1f}x "
-                     f"({ratio['render_over_warp_amortised_cpu']:.1f}x)",
+                     wc(m["rotation"]["per_frame"]), wc(m["warp"]["per_frame"]), *render,
                      "–".join(f"{x:.1f}" for x in m["warp"]["per_frame"]["load_1min"])])
     if rows:
         parts.append("Time, wall seconds (CPU seconds of all threads in parentheses); one frame = all target "
