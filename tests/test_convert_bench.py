@@ -15,7 +15,11 @@ def test_bench_convert_prints_rates_and_ratio(capsys):
     result = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert result["frames"] == 5 + 5 * 2 * 7  # 5 sweeps, 7 ring cameras at twice the lidar rate
     assert result["samples"] == 5
-    for key in ("frames_per_s", "av2_read_frames_per_s", "ratio_vs_av2_read", "convert_s", "av2_read_s"):
+    for key in ("frames_per_s", "av2_read_frames_per_s", "ratio_vs_av2_read", "convert_s", "av2_read_s",
+                "convert_cpu_s", "av2_read_cpu_s", "ratio_vs_av2_read_cpu"):
         assert math.isfinite(result[key]) and result[key] > 0, key
     assert math.isclose(result["ratio_vs_av2_read"], result["frames_per_s"] / result["av2_read_frames_per_s"])
     assert math.isclose(result["frames_per_s"], result["frames"] / result["convert_s"])
+    # CPU seconds and the load next to the wall seconds (found by review: wall time alone)
+    assert math.isclose(result["ratio_vs_av2_read_cpu"], result["av2_read_cpu_s"] / result["convert_cpu_s"])
+    assert len(result["load_1min"]) == 2

@@ -4,16 +4,17 @@ A frame is one LiDAR sweep or one camera image. The baseline, run in the same pr
 same synthetic log, is what any consumer of AV2 pays at least: ``AV2SensorDataLoader`` file
 lookup, reading every sweep (``read_lidar_sweep``) and decoding every image (``read_img``).
 The conversion is timed end to end (read the log, write tables, LIDAR_TOP, images, map, merge).
-Each side runs ``repeats`` times and keeps its fastest run, so first-call costs stay out.
+The two sides alternate, ``repeats`` times each, and each keeps its fastest run (wall and CPU seconds
+apart), so first-call costs stay out; the load is sampled after every run.
 """
 
 from __future__ import annotations
 
 import shutil
 import tempfile
-import time
 from pathlib import Path
 
+from nuav2.bench.timing import Stopwatch
 from nuav2.convert import ConvertOptions, convert_av2
 
 
@@ -48,27 +49,28 @@ def bench_convert(seconds: float = 3.0, image_scale: float = 0.25, image_link: s
         config = SynthConfig(seconds=seconds, image_scale=image_scale)
         log_dir = generate_log(tmp / "av2", seed=seed, config=config)
         split_dir = log_dir.parent
-        read_s, frames = float("inf"), 0
-        for _ in range(repeats):
-            t0 = time.perf_counter()
-            frames = _av2_read(split_dir)
-            read_s = min(read_s, time.perf_counter() - t0)
-        convert_s, report = float("inf"), None
         options = ConvertOptions(image_link=image_link, keyframe_hz=keyframe_hz, show_progress=False)
-        for k in range(repeats):
-            out = tmp / f"out{k}"
-            t0 = time.perf_counter()
-            report = convert_av2(split_dir, out, options)
-            convert_s = min(convert_s, time.perf_counter() - t0)
+        read_sw, convert_sw = Stopwatch(), Stopwatch()
+        frames, report = 0, None
+        for k in range(repeats):  # interleaved: each repeat reads, then converts
+            with read_sw:
+                frames = _av2_read(split_dir)
+            with convert_sw:
+                report = convert_av2(split_dir, tmp / f"out{k}", options)
         assert report is not None
         written = report.table_counts["sample_data"]
         if written != frames:
             raise RuntimeError(f"conversion wrote {written} sample_data but the av2 read saw {frames} frames")
+        read_s, convert_s = min(read_sw.wall_s), min(convert_sw.wall_s)
         fps, read_fps = frames / convert_s, frames / read_s
         return {
             "frames": frames, "samples": report.table_counts["sample"], "frames_per_s": fps,
             "av2_read_frames_per_s": read_fps, "ratio_vs_av2_read": fps / read_fps,
-            "convert_s": convert_s, "av2_read_s": read_s, "image_link": image_link,
+            "convert_s": convert_s, "av2_read_s": read_s,
+            "convert_cpu_s": min(convert_sw.cpu_s), "av2_read_cpu_s": min(read_sw.cpu_s),
+            "ratio_vs_av2_read_cpu": min(read_sw.cpu_s) / max(min(convert_sw.cpu_s), 1e-9),
+            "load_1min": [round(x, 2) for x in (*read_sw.load, *convert_sw.load)],
+            "image_link": image_link,
             "keyframe_hz": keyframe_hz, "repeats": repeats, "synthetic_config": config.to_dict(),
         }
     finally:

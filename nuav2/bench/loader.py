@@ -14,6 +14,7 @@ import time
 from collections.abc import Iterator
 from pathlib import Path
 
+from nuav2.bench.timing import Stopwatch
 from nuav2.maptr.dataset import MapSampleDataset, load_image_rgb
 from nuav2.maptr.infos import camera_channels
 from nuav2.maptr.subsets import available_splits
@@ -53,22 +54,17 @@ def bench_loader(
         ds[0],
     )  # warm-up: lazy imports and first-call caches stay out of the rates
 
-    t0 = time.perf_counter()
+    # interleaved per sample, so a load change on the shared machine hits every candidate alike
+    bare_sw, gt_sw, full_sw = Stopwatch(), Stopwatch(), Stopwatch()
+    n_vectors = n_cams = 0
     for i in range(n):
-        _bare_read(ds, i)
-    bare_s = time.perf_counter() - t0
-
-    t0 = time.perf_counter()
-    n_vectors = 0
-    for i in range(n):
-        n_vectors += len(ds.vectors(i))
-    gt_s = time.perf_counter() - t0
-
-    t0 = time.perf_counter()
-    n_cams = 0
-    for i in range(n):
-        n_cams = len(ds[i]["cam_names"])
-    full_s = time.perf_counter() - t0
+        with bare_sw:
+            _bare_read(ds, i)
+        with gt_sw:
+            n_vectors += len(ds.vectors(i))
+        with full_sw:
+            n_cams = len(ds[i]["cam_names"])
+    bare_s, gt_s, full_s = sum(bare_sw.wall_s), sum(gt_sw.wall_s), sum(full_sw.wall_s)
     return {
         "dataroot": str(dataroot),
         "version": version,
@@ -82,6 +78,10 @@ def bench_loader(
         "gt_only_samples_per_s": round(n / gt_s, 3),
         "bare_read_samples_per_s": round(n / bare_s, 3),
         "ratio_vs_bare_read": round(bare_s / full_s, 4),
+        "cpu_s": {"bare_read": round(sum(bare_sw.cpu_s), 4), "gt_only": round(sum(gt_sw.cpu_s), 4),
+                  "full": round(sum(full_sw.cpu_s), 4)},
+        "wall_s": {"bare_read": round(bare_s, 4), "gt_only": round(gt_s, 4), "full": round(full_s, 4)},
+        "load_1min": [round(min(full_sw.load), 2), round(max(full_sw.load), 2)],
     }
 
 
