@@ -47,6 +47,8 @@ def _convert_once(src: Path, out: Path, mode: str, executor: str, workers: int, 
         raise RuntimeError(f"bench scale: {mode}/{executor}: {report.failed}")
     per_log = list(report.logs.values())
     shutil.rmtree(out, ignore_errors=True)
+    # cpu_s: driver + local workers + reaped Ray daemons, not Ray's workers: compare executors by
+    # task_cpu_s_mean (each log's own CPU seconds, measured in its worker)
     return {"wall_s": wall, "cpu_s": cpu, "load_1min_before": load, "load_1min_after": os.getloadavg()[0],
             "task_s_mean": statistics.fmean(s["seconds"] for s in per_log),
             "task_cpu_s_mean": statistics.fmean(s["cpu_seconds"] for s in per_log),
@@ -93,10 +95,12 @@ def bench_scale(logs: int = 4, seconds: float = 2.0, image_scale: float = 0.125,
             _convert_once(src, tmp / "warm", mode, "local", 1, warp_scale)
         runs: dict[str, list[dict]] = {}
         overheads = []
-        for _ in range(repeats):
+        for rep in range(repeats):
             overheads.append(_ray_overheads())
+            k = rep % len(CANDIDATES)
+            order = CANDIDATES[k:] + CANDIDATES[:k]  # rotated each repeat: no candidate always goes first
             for mode in modes:
-                for executor, workers in CANDIDATES:
+                for executor, workers in order:
                     key = f"{mode}/{executor}/{workers}"
                     runs.setdefault(key, []).append(
                         _convert_once(src, tmp / "out", mode, executor, workers, warp_scale))
