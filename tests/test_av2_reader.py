@@ -305,7 +305,7 @@ def test_empty_camera_dir_when_required(tmp_log):
 
 
 def test_missing_annotations_give_empty_boxes(tmp_log, caplog):
-    log_dir = tmp_log()
+    log_dir = tmp_log(name="ffffffff-0510-35b0-a2fa-b4cea13a6d76")  # no split folder, not a published id
     (log_dir / "annotations.feather").unlink()
     with caplog.at_level(logging.INFO):
         scene = read_log(log_dir, require_cameras=False)
@@ -324,6 +324,16 @@ def test_missing_annotations_in_a_labelled_split_fail_the_log(tmp_log, split):
     test_dir = tmp_log(parent="test", name="ffffffff-0510-35b0-a2fa-b4cea13a6d76")
     (test_dir / "annotations.feather").unlink()
     assert len(read_log(test_dir, require_cameras=False).annotations) == 0
+
+
+def test_missing_annotations_of_a_published_train_log_outside_its_split_folder_fail_the_log(tmp_log):
+    """Found by review: the fixture (a published train log) copied out of train/ without its
+    annotations converted as a 'train' scene with no boxes; the split came from av2's lists, the
+    annotations rule from the folder name alone."""
+    log_dir = tmp_log(parent="downloads")
+    (log_dir / "annotations.feather").unlink()
+    with pytest.raises(AV2LogError, match="missing; every AV2 train log ships its boxes"):
+        read_log(log_dir, require_cameras=False)
 
 
 def test_sweep_outside_pose_table_is_dropped(tmp_log, caplog):

@@ -9,6 +9,7 @@ import numpy as np
 
 from converters.av2.errors import AV2LogError
 from converters.av2.feather import INTEGER, NUMBER, TEXT, read_columns, require_finite
+from converters.av2.logs import split_of
 from nuav2.nuscenes_db.categories import AV2_TO_NUSCENES
 from nuav2.scene import Annotations
 
@@ -36,12 +37,13 @@ def _first_repeat(track: np.ndarray, ts: np.ndarray) -> tuple[int, int] | None:
 
 
 def read_annotations(log_dir: Path) -> Annotations:
-    """All cuboids of the log, in file order. A log without the file gets none (logged), unless it
-    sits in a train/ or val/ folder: there a missing file is a partial download, and its scenes
-    would enter a training or validation set unlabelled."""
+    """All cuboids of the log, in file order. A log without the file gets none (logged), unless its
+    split is train or val (its folder, else av2's published lists, as the scene records it): there a
+    missing file is a partial download, and its scenes would enter a training or validation set
+    unlabelled."""
     path = log_dir / ANNOTATIONS_FILE
     if not path.exists():
-        split = Path(log_dir).parent.name
+        split = split_of(Path(log_dir))
         if split in LABELLED_SPLITS:
             raise AV2LogError(path, f"missing; every AV2 {split} log ships its boxes (only test has "
                               f"none): download the log again, or move it to a test/ folder to convert "
