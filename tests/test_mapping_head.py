@@ -48,7 +48,9 @@ def test_weights_of_the_layout_before_the_point_embedding_are_refused_by_name(tm
     run.mkdir()
     torch.save(old, run / train_mod.MODEL)
     (run / train_mod.RUN_JSON).write_text(json.dumps({"model_config": dataclasses.asdict(cfg)}))
-    with pytest.raises(ValueError, match=r"model\.pt: weights of another model layout .* retrain"):
+    layers = MapModelConfig().decoder_layers
+    named = rf"retrain \({layers} missing \(e\.g\. decoder\.layers\.0\.point_embed\)\)"
+    with pytest.raises(ValueError, match=r"model\.pt: weights of another model layout .* " + named):
         train_mod.load_model(run)
 
 

@@ -27,9 +27,14 @@ def load_weights(model: nn.Module, state: dict, source: str | Path) -> None:
     another layout (saved before an architecture change) instead of torch's list of keys."""
     try:
         model.load_state_dict(state)
-    except RuntimeError as e:
+    except RuntimeError:
+        ours = set(model.state_dict())
+        missing, extra = sorted(ours - set(state)), sorted(set(state) - ours)
+        what = "; ".join(f"{n} {kind} (e.g. {keys[0]})" for kind, keys, n in
+                         (("missing", missing, len(missing)), ("unexpected", extra, len(extra))) if keys)
+        what = what or "tensor shapes differ"
         raise ValueError(f"{source}: weights of another model layout (saved by an older nuav2, model "
-                         f"architecture {ARCHITECTURE} now): retrain ({str(e).splitlines()[0]})") from None
+                         f"architecture {ARCHITECTURE} now): retrain ({what})") from None
 
 
 class MapModel(nn.Module):
