@@ -33,6 +33,18 @@ def test_every_sweep_by_default_and_every_fifth_at_2hz():
         select_keyframes(np.array([T0, T0]), None)
 
 
+def test_a_keyframe_rate_above_the_sweep_rate_says_every_sweep_is_a_sample(caplog):
+    """Found by review: --keyframe-hz 20 on 10 Hz sweeps gave 10 Hz samples without a word."""
+    sweeps = T0 + np.arange(11) * 100 * MS
+    with caplog.at_level("WARNING"):
+        assert select_keyframes(sweeps, 10.0).tolist() == list(range(11))
+        assert select_keyframes(sweeps, 12.0).tolist() == list(range(11))
+    assert caplog.text == ""  # at (or jittering around) the sweep rate: nothing to say
+    with caplog.at_level("WARNING"):
+        assert select_keyframes(sweeps, 20.0).tolist() == list(range(11))
+    assert "--keyframe-hz 20 is above the sweep rate (10 Hz): every sweep is a sample" in caplog.text
+
+
 def test_key_image_is_nearest_within_25ms_and_used_once():
     keys = np.array([T0, T0 + 100 * MS, T0 + 200 * MS])
     images = np.array([T0 - 22 * MS, T0 + 28 * MS, T0 + 124 * MS, T0 + 126 * MS, T0 + 230 * MS])

@@ -10,9 +10,12 @@ unique across the whole log by a deterministic bump (see :func:`unique_microseco
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 
 import numpy as np
+
+log = logging.getLogger(__name__)
 
 KEY_IMAGE_TOLERANCE_NS = 25_000_000
 
@@ -41,7 +44,11 @@ def select_keyframes(sweep_ns: np.ndarray, keyframe_hz: float | None) -> np.ndar
     if not (np.isfinite(keyframe_hz) and keyframe_hz > 0):
         raise ValueError(f"keyframe rate must be a positive number of Hz, got {keyframe_hz}")
     period_ns = 1e9 / keyframe_hz
-    min_gap_ns = period_ns - 0.5 * float(np.median(np.diff(ns)))
+    sweep_period_ns = float(np.median(np.diff(ns)))
+    if period_ns < 0.75 * sweep_period_ns:  # asked for more samples than there are sweeps
+        log.warning("--keyframe-hz %g is above the sweep rate (%.3g Hz): every sweep is a sample",
+                    keyframe_hz, 1e9 / sweep_period_ns)
+    min_gap_ns = period_ns - 0.5 * sweep_period_ns
     keep = [0]
     for i in range(1, len(ns)):
         if ns[i] - ns[keep[-1]] >= min_gap_ns:
