@@ -53,10 +53,7 @@ def drop_needles(ring_xy: np.ndarray, max_width_m: float = NEEDLE_WIDTH_M) -> np
     return np.vstack([out, out[:1]])
 
 
-def is_sliver(ring_xy: np.ndarray, max_width_m: float = NEEDLE_WIDTH_M) -> bool:
-    """A closed ring thinner than ``max_width_m`` overall: area under width x half its perimeter."""
-    xy = np.asarray(ring_xy, dtype=np.float64)[:, :2]
-    x, y = xy[:, 0], xy[:, 1]
-    area = 0.5 * abs(float(np.dot(x[:-1], y[1:]) - np.dot(x[1:], y[:-1])))
-    perimeter = float(np.hypot(*np.diff(xy, axis=0).T).sum())
-    return area <= max_width_m * perimeter / 2.0
+def is_sliver(area_m2: float, perimeter_m: float, max_width_m: float = NEEDLE_WIDTH_M) -> bool:
+    """Whether a closed ring of this area and perimeter is thinner than ``max_width_m`` overall: its
+    area is under that width times half its perimeter (the caller has both from its geometry)."""
+    return area_m2 <= max_width_m * perimeter_m / 2.0

@@ -165,7 +165,8 @@ def contour_lines(
         rings = []
         for k, r in enumerate((poly.exterior, *poly.interiors)):
             ring = LinearRing(drop_needles(np.asarray(r.coords)))
-            if Polygon(ring).area < MIN_RING_AREA_M2 or is_sliver(np.asarray(ring.coords)):
+            area = Polygon(ring).area
+            if area < MIN_RING_AREA_M2 or is_sliver(area, ring.length):
                 continue
             if ring.is_ccw == (k == 0):  # exterior clockwise, holes counter-clockwise
                 ring = LinearRing(ring.coords[::-1])
