@@ -84,22 +84,20 @@ def modes_markdown(result: dict) -> str:
             return f"{d[a]:.3f} ({d[b]:.3f})"
 
         seed = f", seed {r['seed']}" if len({x["seed"] for x in runs}) > 1 else ""
-        render = [wc(m["warp"]["amortised_per_frame"], "wall_s", "cpu_s")]
-        if "render" in m:  # else (--no-render) the rotation and warp timings alone
+        warp_amortised = wc(m["warp"]["amortised_per_frame"], "wall_s", "cpu_s")
+        if "render" in m:
             ratio = r["ratios"]
-            render = [wc(m["render"]["per_frame"]),
-                      f"{ratio['render_over_warp_per_frame_wall']:.1f}x "
-                      f"({ratio['render_over_warp_per_frame_cpu']:.1f}x)",
-                      f"{m['render']['setup']['wall_s']:.0f} ({m['render']['setup']['cpu_s']:.0f})",
-                      *render,
-                      wc(m["render"]["amortised_per_frame"], "wall_s", "cpu_s"),
-                      f"{ratio['render_over_warp_amortised_wall']:.1f}x "
-                      f"({ratio['render_over_warp_amortised_cpu']:.1f}x)"]
-        else:
-            render = ["–", "–", "–", *render, "–", "–"]
+            per_frame = [wc(m["render"]["per_frame"]), f"{ratio['render_over_warp_per_frame_wall']:.1f}x "
+                                                       f"({ratio['render_over_warp_per_frame_cpu']:.1f}x)",
+                         f"{m['render']['setup']['wall_s']:.0f} ({m['render']['setup']['cpu_s']:.0f})"]
+            amortised = [wc(m["render"]["amortised_per_frame"], "wall_s", "cpu_s"),
+                         f"{ratio['render_over_warp_amortised_wall']:.1f}x "
+                         f"({ratio['render_over_warp_amortised_cpu']:.1f}x)"]
+        else:  # --no-render: the rotation and warp timings alone
+            per_frame, amortised = ["–"] * 3, ["–"] * 2
         rows.append([f"{r['preset']}, {r['seconds']:g} s{seed}", str(r["frames"]),
-                     wc(m["rotation"]["per_frame"]), wc(m["warp"]["per_frame"]), *render,
-                     "–".join(f"{x:.1f}" for x in m["warp"]["per_frame"]["load_1min"])])
+                     wc(m["rotation"]["per_frame"]), wc(m["warp"]["per_frame"]), *per_frame, warp_amortised,
+                     *amortised, "–".join(f"{x:.1f}" for x in m["warp"]["per_frame"]["load_1min"])])
     if rows:
         parts.append("Time, wall seconds (CPU seconds of all threads in parentheses); one frame = all target "
                      f"cameras at one sweep; reconstruction preset `{runs[0]['recon_preset']}`:")

@@ -166,13 +166,14 @@ def _run(args: argparse.Namespace) -> int:
         args.version = resolve_version(args.dataroot, args.version)
         check_classes(args.classes, list(MAP_CLASSES), "the map GT")
     preds = load_predictions(args.pred)
+    gt_classes: frozenset[str] = frozenset()  # the map GT's classes are MAP_CLASSES
     if args.gt_json:
         gts = load_gt_file(args.gt_json)
         source = str(args.gt_json)
         check_classes(args.classes, gt_file_classes(gts, preds), f"{source} and {args.pred}")
+        gt_classes = frozenset(vec[0] for vectors in gts.values() for vec in vectors)
     else:
         gts, source = map_gt(args)
-    gt_classes = frozenset(vec[0] for vectors in gts.values() for vec in vectors if args.gt_json)
     classes, left_out = choose_classes(preds, args.classes, args.pred, gt_classes)
     try:
         result = evaluate_vectors(
